@@ -1,0 +1,1 @@
+"""Grasp-point selection on an estimated cloth mesh, and the planner service."""

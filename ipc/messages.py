@@ -1,0 +1,227 @@
+"""Message dataclasses shared by every package.
+
+Each message is a plain dataclass holding NumPy arrays and scalars. The numerical
+core (tracker, grasp selection) takes and returns these; the codec in
+``ipc.codec`` turns them into msgpack bytes and back. Arrays use the conventions of
+DESIGN.md: metres, seconds, radians, OpenCV optical camera frame.
+
+Constructors validate shapes, dtypes and values and raise ``ValueError`` with a
+one-line message naming the field, so a bad frame is caught where it enters.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+SCHEMA_VERSION = 1
+
+
+def _check_array(name: str, value, shape: tuple, dtype=None, finite: bool = False) -> np.ndarray:
+    """Return ``value`` as an array of ``shape`` (None = any length) and ``dtype``.
+
+    Raises ValueError naming ``name`` and the shape or dtype received.
+    """
+    arr = np.asarray(value)
+    if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
+        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+        raise ValueError(f"{name}: expected shape {want}, got {arr.shape}")
+    if dtype is not None and arr.dtype != dtype:
+        if np.dtype(dtype).kind == "f" and arr.dtype.kind in "fiu":
+            arr = arr.astype(dtype)
+        elif np.dtype(dtype).kind in "iu" and arr.dtype.kind in "iu":
+            arr = arr.astype(dtype)
+        else:
+            raise ValueError(f"{name}: expected dtype {np.dtype(dtype)}, got {arr.dtype}")
+    if finite and arr.size and not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: contains NaN or infinite values")
+    return arr
+
+
+@dataclass(frozen=True)
+class CameraInfo:
+    """Pinhole intrinsics, as ROS CameraInfo.
+
+    width, height : int, pixels
+    K : (3, 3) float64, ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``, pixels
+    D : (5,) float64 plumb_bob distortion ``k1 k2 t1 t2 k3``, or (0,) for none
+    frame_id : name of the optical frame the camera looks along (+z)
+    """
+
+    width: int
+    height: int
+    K: np.ndarray
+    D: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    frame_id: str = "camera_color_optical_frame"
+
+    def __post_init__(self):
+        if int(self.width) <= 0 or int(self.height) <= 0:
+            raise ValueError(f"CameraInfo: width and height must be positive, got {self.width}x{self.height}")
+        object.__setattr__(self, "width", int(self.width))
+        object.__setattr__(self, "height", int(self.height))
+        K = _check_array("CameraInfo.K", self.K, (3, 3), np.float64, finite=True)
+        if K[0, 0] <= 0 or K[1, 1] <= 0 or K[2, 2] != 1.0 or K[0, 1] != 0 or np.any(K[2, :2] != 0):
+            raise ValueError(f"CameraInfo.K: expected [[fx,0,cx],[0,fy,cy],[0,0,1]] with fx, fy > 0, got {K.tolist()}")
+        D = _check_array("CameraInfo.D", self.D, (None,), np.float64, finite=True)
+        if D.size not in (0, 4, 5, 8):
+            raise ValueError(f"CameraInfo.D: expected 0, 4, 5 or 8 coefficients, got {D.size}")
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "D", D)
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+    @classmethod
+    def from_fov(cls, width: int, height: int, fov_y_rad: float, **kw) -> "CameraInfo":
+        """Square-pixel camera with the principal point at the image centre."""
+        f = 0.5 * height / math.tan(0.5 * fov_y_rad)
+        K = np.array([[f, 0.0, 0.5 * width], [0.0, f, 0.5 * height], [0.0, 0.0, 1.0]])
+        return cls(width=width, height=height, K=K, **kw)
+
+
+@dataclass(frozen=True)
+class RGBDFrame:
+    """One registered colour and depth image.
+
+    rgb : (H, W, 3) uint8, RGB channel order
+    depth_m : (H, W) float32, metres along the optical axis; 0 or NaN = no measurement
+    camera : CameraInfo of both images (depth is registered to colour)
+    timestamp_s : float, seconds
+    seq : int, frame counter of the source
+    """
+
+    rgb: np.ndarray
+    depth_m: np.ndarray
+    camera: CameraInfo
+    timestamp_s: float = 0.0
+    seq: int = 0
+
+    def __post_init__(self):
+        cam = self.camera
+        if not isinstance(cam, CameraInfo):
+            raise ValueError(f"RGBDFrame.camera: expected CameraInfo, got {type(cam).__name__}")
+        rgb = _check_array("RGBDFrame.rgb", self.rgb, (cam.height, cam.width, 3), np.uint8)
+        depth = _check_array("RGBDFrame.depth_m", self.depth_m, (cam.height, cam.width), np.float32)
+        if np.any(depth < 0):
+            raise ValueError("RGBDFrame.depth_m: negative depth values")
+        if np.any(np.isinf(depth)):
+            raise ValueError("RGBDFrame.depth_m: infinite depth values (use 0 or NaN for missing)")
+        if not math.isfinite(float(self.timestamp_s)):
+            raise ValueError(f"RGBDFrame.timestamp_s: expected a finite number, got {self.timestamp_s}")
+        object.__setattr__(self, "rgb", rgb)
+        object.__setattr__(self, "depth_m", depth)
+        object.__setattr__(self, "timestamp_s", float(self.timestamp_s))
+        object.__setattr__(self, "seq", int(self.seq))
+
+    def valid_depth(self) -> np.ndarray:
+        """(H, W) bool: where depth was measured (finite and > 0)."""
+        d = self.depth_m
+        return np.isfinite(d) & (d > 0)
+
+
+@dataclass(frozen=True)
+class MeshEstimate:
+    """The tracker's estimate of the object's configuration in one frame.
+
+    vertices : (N, 3) float64, metres, camera frame (``frame_id``)
+    faces : (M, 3) int32 vertex ids, counter-clockwise seen from the camera at frame 0
+    boundary : (B,) int32 ids of boundary vertices (fewer than six neighbours)
+    canonical : (N, 3) float64, metres, the canonical (rest) mesh in its own flat frame
+        (z = 0 plane); material coordinates of each vertex
+    energies : per-term energies at the solution, keys among
+        ``smoothness, correspondence, depth, boundary, total``
+    iterations : solver iterations used for this frame
+    confidence : in [0, 1], fraction of visible vertices that the depth data supports
+    lost : True when the data no longer explains the mesh
+    timing_ms : tracking time of this frame, milliseconds
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    boundary: np.ndarray
+    canonical: np.ndarray
+    timestamp_s: float = 0.0
+    seq: int = 0
+    energies: dict = field(default_factory=dict)
+    iterations: int = 0
+    confidence: float = 1.0
+    lost: bool = False
+    timing_ms: float = 0.0
+    frame_id: str = "camera_color_optical_frame"
+
+    def __post_init__(self):
+        v = _check_array("MeshEstimate.vertices", self.vertices, (None, 3), np.float64, finite=True)
+        n = v.shape[0]
+        f = _check_array("MeshEstimate.faces", self.faces, (None, 3), np.int32)
+        b = _check_array("MeshEstimate.boundary", self.boundary, (None,), np.int32)
+        c = _check_array("MeshEstimate.canonical", self.canonical, (n, 3), np.float64, finite=True)
+        for name, ids in (("faces", f), ("boundary", b)):
+            if ids.size and (ids.min() < 0 or ids.max() >= n):
+                raise ValueError(f"MeshEstimate.{name}: vertex ids outside [0, {n})")
+        if not 0.0 <= float(self.confidence) <= 1.0:
+            raise ValueError(f"MeshEstimate.confidence: expected a value in [0, 1], got {self.confidence}")
+        object.__setattr__(self, "vertices", v)
+        object.__setattr__(self, "faces", f)
+        object.__setattr__(self, "boundary", b)
+        object.__setattr__(self, "canonical", c)
+        object.__setattr__(self, "energies", {str(k): float(x) for k, x in dict(self.energies).items()})
+        object.__setattr__(self, "lost", bool(self.lost))
+
+
+@dataclass(frozen=True)
+class GraspPlan:
+    """One grasp for a parallel gripper, in the camera frame unless ``frame_id`` says otherwise.
+
+    position : (3,) float64, metres, where the fingertips close
+    approach : (3,) float64, unit vector, direction the gripper moves in to reach ``position``
+    quat_xyzw : (4,) float64, gripper orientation (x, y, z, w)
+    opening_width_m : finger opening before closing, metres
+    score : higher is better, in [0, 1]
+    vertex_id : mesh vertex the grasp is attached to
+    kind : "corner", "boundary" or "highest"
+    """
+
+    position: np.ndarray
+    approach: np.ndarray
+    quat_xyzw: np.ndarray
+    opening_width_m: float
+    score: float
+    vertex_id: int
+    kind: str
+    frame_id: str = "camera_color_optical_frame"
+    timestamp_s: float = 0.0
+
+    KINDS = ("corner", "boundary", "highest")
+
+    def __post_init__(self):
+        object.__setattr__(self, "position", _check_array("GraspPlan.position", self.position, (3,), np.float64, finite=True))
+        a = _check_array("GraspPlan.approach", self.approach, (3,), np.float64, finite=True)
+        q = _check_array("GraspPlan.quat_xyzw", self.quat_xyzw, (4,), np.float64, finite=True)
+        if abs(np.linalg.norm(a) - 1.0) > 1e-6:
+            raise ValueError(f"GraspPlan.approach: expected a unit vector, got norm {np.linalg.norm(a):.6g}")
+        if abs(np.linalg.norm(q) - 1.0) > 1e-6:
+            raise ValueError(f"GraspPlan.quat_xyzw: expected a unit quaternion, got norm {np.linalg.norm(q):.6g}")
+        if self.kind not in self.KINDS:
+            raise ValueError(f"GraspPlan.kind: expected one of {self.KINDS}, got {self.kind!r}")
+        if not (math.isfinite(float(self.opening_width_m)) and float(self.opening_width_m) > 0):
+            raise ValueError(f"GraspPlan.opening_width_m: expected a positive number, got {self.opening_width_m}")
+        object.__setattr__(self, "approach", a)
+        object.__setattr__(self, "quat_xyzw", q)
+        object.__setattr__(self, "opening_width_m", float(self.opening_width_m))
+        object.__setattr__(self, "score", float(self.score))
+        object.__setattr__(self, "vertex_id", int(self.vertex_id))

@@ -1,0 +1,1 @@
+"""Thin entry points that start the toolkit's processes."""

@@ -1,0 +1,1 @@
+"""PyBullet cloth simulation, virtual RGB-D camera and ground truth."""
