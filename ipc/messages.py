@@ -225,3 +225,261 @@ class GraspPlan:
         object.__setattr__(self, "opening_width_m", float(self.opening_width_m))
         object.__setattr__(self, "score", float(self.score))
         object.__setattr__(self, "vertex_id", int(self.vertex_id))
+
+
+def _check_request_id(owner: str, value) -> int:
+    """Return ``value`` as a non-negative int; raise ValueError naming ``owner.request_id``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise ValueError(f"{owner}.request_id: expected a non-negative integer, got {value!r}")
+    return int(value)
+
+
+def _check_parameters(name: str, params, allow_empty: bool) -> dict:
+    """Return a copy of ``params`` (str -> bool | int | float | str), checked.
+
+    Floats must be finite; NumPy scalars become Python scalars so that the codec and
+    a reader of the dict see one type per value.
+    """
+    if not isinstance(params, dict):
+        raise ValueError(f"{name}: expected a dict, got {type(params).__name__}")
+    if not params and not allow_empty:
+        raise ValueError(f"{name}: expected at least one parameter")
+    out = {}
+    for key, value in params.items():
+        if not isinstance(key, str) or not key:
+            raise ValueError(f"{name}: parameter names must be non-empty strings, got {key!r}")
+        if isinstance(value, (bool, np.bool_)):
+            value = bool(value)
+        elif isinstance(value, (int, np.integer)):
+            value = int(value)
+        elif isinstance(value, (float, np.floating)):
+            value = float(value)
+            if not math.isfinite(value):
+                raise ValueError(f"{name}[{key!r}]: expected a finite number, got {value}")
+        elif not isinstance(value, str):
+            raise ValueError(f"{name}[{key!r}]: expected bool, int, float or str, got {type(value).__name__}")
+        out[key] = value
+    return out
+
+
+@dataclass(frozen=True)
+class GraspRequest:
+    """Ask the grasp planner for grasp candidates.
+
+    request_id : int >= 0, echoed in the reply
+    max_candidates : int in [1, 100], most candidates wanted in the reply
+    kinds : non-empty tuple of distinct ``GraspPlan.KINDS``, the kinds of grasp to consider
+    estimate : MeshEstimate to plan on, or None to plan on the newest estimate the
+        planner has received from the perception service
+    """
+
+    request_id: int = 0
+    max_candidates: int = 5
+    kinds: tuple = GraspPlan.KINDS
+    estimate: MeshEstimate | None = None
+
+    MAX_CANDIDATES = 100
+
+    def __post_init__(self):
+        object.__setattr__(self, "request_id", _check_request_id("GraspRequest", self.request_id))
+        n = self.max_candidates
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= self.MAX_CANDIDATES:
+            raise ValueError(f"GraspRequest.max_candidates: expected an integer in [1, {self.MAX_CANDIDATES}], got {n!r}")
+        object.__setattr__(self, "max_candidates", int(n))
+        if isinstance(self.kinds, str):
+            raise ValueError(f"GraspRequest.kinds: expected a sequence of kinds, got the string {self.kinds!r}")
+        kinds = tuple(self.kinds)
+        if not kinds or len(set(kinds)) != len(kinds) or any(k not in GraspPlan.KINDS for k in kinds):
+            raise ValueError(f"GraspRequest.kinds: expected distinct values among {GraspPlan.KINDS}, got {kinds!r}")
+        object.__setattr__(self, "kinds", kinds)
+        if self.estimate is not None and not isinstance(self.estimate, MeshEstimate):
+            raise ValueError(f"GraspRequest.estimate: expected MeshEstimate or None, got {type(self.estimate).__name__}")
+
+
+@dataclass(frozen=True)
+class GraspPlanReply:
+    """The grasp planner's answer to a GraspRequest.
+
+    request_id : int >= 0, the request's id
+    candidates : tuple of GraspPlan, best first (scores non-increasing); empty when no
+        grasp was found on the mesh
+    estimate_seq : ``seq`` of the MeshEstimate planned on
+    """
+
+    request_id: int = 0
+    candidates: tuple = ()
+    estimate_seq: int = 0
+
+    def __post_init__(self):
+        object.__setattr__(self, "request_id", _check_request_id("GraspPlanReply", self.request_id))
+        candidates = tuple(self.candidates)
+        for i, c in enumerate(candidates):
+            if not isinstance(c, GraspPlan):
+                raise ValueError(f"GraspPlanReply.candidates[{i}]: expected GraspPlan, got {type(c).__name__}")
+        scores = [c.score for c in candidates]
+        if any(a < b for a, b in zip(scores, scores[1:])):
+            raise ValueError(f"GraspPlanReply.candidates: expected best first (non-increasing scores), got scores {scores}")
+        object.__setattr__(self, "candidates", candidates)
+        object.__setattr__(self, "estimate_seq", int(self.estimate_seq))
+
+
+@dataclass(frozen=True)
+class InitialiseRequest:
+    """Ask the perception service to build a new mesh on the next frame it receives.
+
+    request_id : int >= 0, echoed in the reply
+    mask : (H, W) uint8, non-zero on the object in that frame (H, W of the frame), or
+        None to find the object by depth segmentation. A bool mask is converted.
+    """
+
+    request_id: int = 0
+    mask: np.ndarray | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "request_id", _check_request_id("InitialiseRequest", self.request_id))
+        if self.mask is None:
+            return
+        mask = np.asarray(self.mask)
+        if mask.dtype == np.bool_:
+            mask = mask.astype(np.uint8)
+        mask = _check_array("InitialiseRequest.mask", mask, (None, None), np.uint8)
+        if not mask.any():
+            raise ValueError(f"InitialiseRequest.mask: no non-zero pixel in the {mask.shape} mask")
+        object.__setattr__(self, "mask", mask)
+
+
+@dataclass(frozen=True)
+class ResetRequest:
+    """Ask the perception service to drop its mesh and wait for an InitialiseRequest.
+
+    request_id : int >= 0, echoed in the reply
+    """
+
+    request_id: int = 0
+
+    def __post_init__(self):
+        object.__setattr__(self, "request_id", _check_request_id("ResetRequest", self.request_id))
+
+
+@dataclass(frozen=True)
+class SetParametersRequest:
+    """Change tracker parameters of the perception service (e.g. energy weights).
+
+    request_id : int >= 0, echoed in the reply
+    parameters : non-empty dict, name -> bool | int | float (finite) | str. The names a
+        service accepts are those in its StatusReply.parameters; others are refused.
+    """
+
+    request_id: int = 0
+    parameters: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        object.__setattr__(self, "request_id", _check_request_id("SetParametersRequest", self.request_id))
+        object.__setattr__(self, "parameters", _check_parameters("SetParametersRequest.parameters", self.parameters, allow_empty=False))
+
+
+@dataclass(frozen=True)
+class StatusRequest:
+    """Ask the perception service for its StatusReply.
+
+    request_id : int >= 0, echoed in the reply
+    """
+
+    request_id: int = 0
+
+    def __post_init__(self):
+        object.__setattr__(self, "request_id", _check_request_id("StatusRequest", self.request_id))
+
+
+@dataclass(frozen=True)
+class StatusReply:
+    """The perception service's state; the reply to every control request that succeeded.
+
+    request_id : int >= 0, the request's id
+    state : one of ``STATES``: "idle" (no mesh), "initialising" (mesh to be built on
+        the next frame), "tracking", "lost" (the data no longer explains the mesh)
+    frames_processed : int >= 0, frames tracked since the last initialisation
+    last_seq : ``seq`` of the last frame processed, -1 if none
+    parameters : dict, name -> bool | int | float | str, every tracker parameter the
+        service accepts in a SetParametersRequest, with its current value
+    message : one line for a person, may be empty
+    """
+
+    request_id: int = 0
+    state: str = "idle"
+    frames_processed: int = 0
+    last_seq: int = -1
+    parameters: dict = field(default_factory=dict)
+    message: str = ""
+
+    STATES = ("idle", "initialising", "tracking", "lost")
+
+    def __post_init__(self):
+        object.__setattr__(self, "request_id", _check_request_id("StatusReply", self.request_id))
+        if self.state not in self.STATES:
+            raise ValueError(f"StatusReply.state: expected one of {self.STATES}, got {self.state!r}")
+        if int(self.frames_processed) < 0:
+            raise ValueError(f"StatusReply.frames_processed: expected a non-negative integer, got {self.frames_processed}")
+        if not isinstance(self.message, str) or "\n" in self.message:
+            raise ValueError("StatusReply.message: expected a single-line string")
+        object.__setattr__(self, "frames_processed", int(self.frames_processed))
+        object.__setattr__(self, "last_seq", int(self.last_seq))
+        object.__setattr__(self, "parameters", _check_parameters("StatusReply.parameters", self.parameters, allow_empty=True))
+
+
+@dataclass(frozen=True)
+class ErrorReply:
+    """The reply to a request that could not be served.
+
+    code : one of ``CODES``:
+        "protocol" the request could not be decoded (bad msgpack, framing, version, field);
+        "unsupported" a valid message of a type this server does not answer;
+        "invalid" well-formed, but its values cannot be applied (e.g. a mask of the wrong size);
+        "not_ready" the server cannot answer yet (e.g. planner with no estimate); retry later;
+        "internal" the server failed; the request may be retried
+    message : one line for a person, names what was wrong
+    request_id : the request's id when it could be decoded, else 0
+    """
+
+    code: str
+    message: str
+    request_id: int = 0
+
+    CODES = ("protocol", "unsupported", "invalid", "not_ready", "internal")
+
+    def __post_init__(self):
+        if self.code not in self.CODES:
+            raise ValueError(f"ErrorReply.code: expected one of {self.CODES}, got {self.code!r}")
+        if not isinstance(self.message, str) or not self.message or "\n" in self.message:
+            raise ValueError("ErrorReply.message: expected a non-empty single-line string")
+        object.__setattr__(self, "request_id", _check_request_id("ErrorReply", self.request_id))
+
+
+@dataclass(frozen=True)
+class Heartbeat:
+    """Sent by every publisher every ``period_s`` so subscribers notice when it vanishes.
+
+    source : non-empty name of the publishing process, e.g. "perception"
+    seq : int >= 0, counts heartbeats from 0 at the publisher's start (a drop to 0
+        means the publisher restarted)
+    timestamp_s : sender's wall clock (Unix time), seconds
+    period_s : > 0, seconds until the next heartbeat
+    """
+
+    source: str
+    seq: int = 0
+    timestamp_s: float = 0.0
+    period_s: float = 1.0
+
+    def __post_init__(self):
+        if not isinstance(self.source, str) or not self.source:
+            raise ValueError(f"Heartbeat.source: expected a non-empty string, got {self.source!r}")
+        if int(self.seq) < 0:
+            raise ValueError(f"Heartbeat.seq: expected a non-negative integer, got {self.seq}")
+        if not math.isfinite(float(self.timestamp_s)):
+            raise ValueError(f"Heartbeat.timestamp_s: expected a finite number, got {self.timestamp_s}")
+        if not (math.isfinite(float(self.period_s)) and float(self.period_s) > 0):
+            raise ValueError(f"Heartbeat.period_s: expected a positive number, got {self.period_s}")
+        object.__setattr__(self, "seq", int(self.seq))
+        object.__setattr__(self, "timestamp_s", float(self.timestamp_s))
+        object.__setattr__(self, "period_s", float(self.period_s))

@@ -1,0 +1,398 @@
+"""The outline of a canonical (rest) cloth mesh: ordered boundary loops and corners.
+
+Data form: the canonical mesh of ``MeshEstimate`` -- ``canonical`` (N, 3) float64
+metres, a flat rest mesh (material coordinates, normally in the z = 0 plane),
+``faces`` (M, 3) int vertex ids, ``boundary`` (B,) int vertex ids. Everything here
+depends on the canonical mesh only, so it is computed once per mesh and reused for
+every tracked frame.
+
+The tracker's canonical mesh is a hexagonal grid of equilateral triangles laid over
+the cloth, so its outline follows the real outline but is ragged at the scale of
+one grid spacing (steps of 60 degrees between neighbouring boundary vertices). The
+turn of the outline is therefore measured over chords that span a few spacings on
+each side of a vertex, not from the two adjacent vertices.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import defaultdict
+from dataclasses import dataclass
+
+import numpy as np
+
+from grasping._checks import check_ids, check_points
+
+log = logging.getLogger(__name__)
+
+#: Default largest interior angle of the outline, radians, that still counts as a corner.
+DEFAULT_CORNER_MAX_ANGLE_RAD = float(np.deg2rad(130.0))
+#: Default half-length of the chords that measure the outline's turn, in grid spacings.
+DEFAULT_WINDOW_SPACINGS = 3.0
+
+
+@dataclass(frozen=True, eq=False)
+class Outline:
+    """Outer outline of a canonical mesh, ordered, with corners and even samples.
+
+    All arrays with a leading ``R`` have one row per outline position ("row"): the
+    outer loops concatenated, each loop ordered so that the cloth lies to the left
+    of the travel direction with respect to the face winding normal. A vertex where
+    two parts of the outline touch (a pinch) appears in two rows.
+
+    Attributes
+    ----------
+    vertex_ids : (R,) int64, mesh vertex of each row
+    loop_ids : (R,) int64, index of the loop each row belongs to
+    arclength_m : (R,) float64, metres, position of the row along its loop, from
+        the loop's first row, measured on the canonical mesh
+    perimeters_m : (L,) float64, metres, length of each loop
+    chord_ids : (R, 2, 2) int64, ``[row, side, end]``: the outline edge holding the
+        chord end ``window_m`` behind (side 0) or ahead of (side 1) the row
+    chord_fracs : (R, 2) float64 in [0, 1), position of each chord end along its
+        edge, so a chord end is ``(1 - f) * X[ids[0]] + f * X[ids[1]]`` for any
+        vertex positions ``X`` of the mesh (canonical or tracked)
+    interior_angle_rad : (R,) float64 in (0, 2 pi), radians, interior angle of the
+        outline at each row measured between its two chords; below pi is convex
+    spacing_m : float, metres, median edge length of the canonical mesh
+    window_m : float, metres, chord half-length before clamping to small loops
+    corner_rows : (C,) int64, rows of the corners, in outline order
+    """
+
+    vertex_ids: np.ndarray
+    loop_ids: np.ndarray
+    arclength_m: np.ndarray
+    perimeters_m: np.ndarray
+    chord_ids: np.ndarray
+    chord_fracs: np.ndarray
+    interior_angle_rad: np.ndarray
+    spacing_m: float
+    window_m: float
+    corner_rows: np.ndarray
+
+    @property
+    def corner_ids(self) -> np.ndarray:
+        """(C,) int64, mesh vertex ids of the corners, in outline order."""
+        return self.vertex_ids[self.corner_rows]
+
+    def chord_points(self, points: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Chord ends of ``rows`` for vertex positions ``points``.
+
+        Parameters
+        ----------
+        points : (N, D) float64, positions of all mesh vertices in any frame (the
+            canonical mesh, or a tracked estimate in the camera frame)
+        rows : (K,) int64, outline rows
+
+        Returns
+        -------
+        behind, ahead : (K, D) float64 each, the chord ends behind and ahead of each
+            row along the outline
+        """
+        ids = self.chord_ids[rows]
+        f = self.chord_fracs[rows][..., None]
+        ends = (1.0 - f) * points[ids[..., 0]] + f * points[ids[..., 1]]
+        return ends[:, 0], ends[:, 1]
+
+    def sample_rows(self, spacing_m: float) -> np.ndarray:
+        """Rows evenly spaced along each loop, about ``spacing_m`` apart.
+
+        Samples sit half a step after the loop's first corner (or its first row when
+        it has none) so that on a polygonal cloth they fall between corners, where
+        the outline direction is well defined; corners are the corner grasps' job.
+
+        Parameters
+        ----------
+        spacing_m : float, metres along the canonical outline, > 0
+
+        Returns
+        -------
+        (S,) int64 rows, in outline order, without repeats
+        """
+        if not spacing_m > 0:
+            raise ValueError(f"Expected spacing_m > 0, got {spacing_m}")
+        picked = []
+        for loop, perimeter in enumerate(self.perimeters_m):
+            rows = np.flatnonzero(self.loop_ids == loop)
+            s = self.arclength_m[rows]
+            corners = np.intersect1d(self.corner_rows, rows)
+            count = max(1, int(round(perimeter / spacing_m)))
+            step = perimeter / count
+            start = (self.arclength_m[corners[0]] if corners.size else 0.0) + 0.5 * step
+            targets = np.mod(start + step * np.arange(count), perimeter)
+            # Nearest row along the loop, with wrap-around at the loop's start.
+            gap = np.abs(targets[:, None] - s[None, :])
+            gap = np.minimum(gap, perimeter - gap)
+            picked.append(rows[np.argmin(gap, axis=1)])
+        if not picked:
+            return np.zeros(0, np.int64)
+        rows = np.concatenate(picked)
+        _, first = np.unique(rows, return_index=True)
+        return rows[np.sort(first)]
+
+
+def _flatten(canonical: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """2D coordinates of a flat canonical mesh with its faces counter-clockwise.
+
+    The canonical mesh lies in the z = 0 plane by contract; projecting on its best
+    fitting plane instead of dropping z keeps this correct for a flat mesh in any
+    plane. The result is mirrored if needed so that the faces' winding is
+    counter-clockwise, which fixes which side of a boundary edge is the cloth.
+
+    Returns (N, 2) float64, metres.
+    """
+    centred = canonical - canonical.mean(axis=0)
+    _, sv, vt = np.linalg.svd(centred, full_matrices=False)
+    if sv[1] <= 1e-9 * max(sv[0], 1e-300):
+        raise ValueError(f"Expected a canonical mesh spanning a plane, got singular values {sv.tolist()}")
+    if sv[2] > 1e-3 * sv[0]:
+        log.debug("canonical mesh is not flat (singular values %s); using its best-fit plane", sv.tolist())
+    pts = centred @ vt[:2].T
+    a, b, c = pts[faces[:, 0]], pts[faces[:, 1]], pts[faces[:, 2]]
+    twice_area = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    if abs(twice_area.sum()) < 1e-12:
+        raise ValueError("Expected faces with non-zero total area on the canonical mesh, got zero")
+    if twice_area.sum() < 0:
+        pts[:, 1] *= -1.0
+    return pts
+
+
+def _edge_keys(edges: np.ndarray, n: int) -> np.ndarray:
+    """(E,) int64 key of each undirected edge (E, 2), equal for (u, v) and (v, u)."""
+    return np.minimum(edges[:, 0], edges[:, 1]) * n + np.maximum(edges[:, 0], edges[:, 1])
+
+
+def _directed_edges(faces: np.ndarray) -> np.ndarray:
+    """(3M, 2) int64 edges of every face, in the face's winding."""
+    return np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+
+
+def _boundary_half_edges(faces: np.ndarray, n: int) -> np.ndarray:
+    """(E, 2) int64 directed edges used by exactly one face, in that face's winding.
+
+    With counter-clockwise faces the cloth lies to the left of each such edge.
+    """
+    directed = _directed_edges(faces)
+    _, inverse, counts = np.unique(_edge_keys(directed, n), return_inverse=True, return_counts=True)
+    return directed[counts[inverse] == 1]
+
+
+def _trace_loops(half_edges: np.ndarray, pts: np.ndarray) -> list[np.ndarray]:
+    """Chain boundary half-edges into closed loops of vertex ids.
+
+    Where several loops touch at one vertex (two triangles sharing only a corner,
+    which a grid laid over a concave outline can produce), the next edge is the
+    first one met turning clockwise from the way back: that keeps each loop on the
+    boundary of one fan of triangles, so loops stay simple.
+    """
+    outgoing = defaultdict(list)
+    for e, u in enumerate(half_edges[:, 0]):
+        outgoing[int(u)].append(e)
+    used = np.zeros(len(half_edges), bool)
+    loops = []
+    for start in range(len(half_edges)):
+        if used[start]:
+            continue
+        loop, e = [], start
+        while True:
+            used[e] = True
+            u, v = half_edges[e]
+            loop.append(int(u))
+            options = [f for f in outgoing[int(v)] if not used[f] or f == start]
+            if not options:
+                log.warning("open boundary chain of %d vertices (non-manifold mesh); ignored", len(loop))
+                loop = []
+                break
+            back = pts[u] - pts[v]
+            ahead = pts[half_edges[options, 1]] - pts[v]
+            clockwise = np.mod(np.arctan2(back[1], back[0]) - np.arctan2(ahead[:, 1], ahead[:, 0]), 2 * np.pi)
+            e = options[int(np.argmin(clockwise))]
+            if e == start:
+                break
+        if len(loop) >= 3:
+            loops.append(np.asarray(loop, np.int64))
+    return loops
+
+
+def _chord_ends(loop_pts: np.ndarray, window: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the chords of half-length ``window`` (arc length) end on a closed loop.
+
+    Parameters
+    ----------
+    loop_pts : (n, 2) float64, ordered loop positions, metres
+    window : float, metres of arc length on each side
+
+    Returns
+    -------
+    arclength : (n,) float64, arc position of each loop vertex
+    edge : (n, 2) int64, loop index of the edge's start holding the chord end behind / ahead
+    frac : (n, 2) float64, position along that edge in [0, 1)
+    """
+    seg = np.linalg.norm(np.roll(loop_pts, -1, axis=0) - loop_pts, axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    perimeter = cum[-1]
+    arclength = cum[:-1]
+    targets = np.mod(arclength[:, None] + np.array([-window, window])[None, :], perimeter)
+    edge = np.clip(np.searchsorted(cum, targets, side="right") - 1, 0, len(seg) - 1)
+    frac = np.clip((targets - cum[edge]) / np.maximum(seg[edge], 1e-300), 0.0, 1.0 - 1e-12)
+    return arclength, edge, frac
+
+
+def _suppress(angle: np.ndarray, arclength: np.ndarray, perimeter: float, radius: float, max_angle: float) -> np.ndarray:
+    """Rows of one loop that are corners: sharp, and the sharpest within ``radius``.
+
+    Greedy non-maximum suppression on sharpness: a hex-grid corner spreads a dip
+    in the interior angle over about a chord length of outline, of which only the
+    deepest vertex is the corner.
+    """
+    keep = []
+    for i in np.argsort(angle, kind="stable"):
+        if angle[i] >= max_angle:
+            break
+        gap = np.abs(arclength[keep] - arclength[i])
+        if not np.any(np.minimum(gap, perimeter - gap) < radius):
+            keep.append(i)
+    return np.sort(np.asarray(keep, np.int64))
+
+
+def build_outline(
+    canonical,
+    faces,
+    boundary,
+    max_angle_rad: float = DEFAULT_CORNER_MAX_ANGLE_RAD,
+    window_spacings: float = DEFAULT_WINDOW_SPACINGS,
+) -> Outline:
+    """Trace the outer outline of a canonical mesh and find its corners.
+
+    Parameters
+    ----------
+    canonical : (N, 3) float64, metres, flat rest mesh (material coordinates)
+    faces : (M, 3) int vertex ids, M >= 1
+    boundary : (B,) int vertex ids of the boundary vertices, B >= 1
+    max_angle_rad : float, radians in (0, pi): largest interior angle of a corner
+    window_spacings : float > 0, half-length of the chords measuring the outline's
+        turn, in grid spacings (median canonical edge length)
+
+    Returns
+    -------
+    Outline
+
+    Raises
+    ------
+    ValueError : wrong shapes, ids out of range, empty faces or boundary, a
+        degenerate canonical mesh, or parameters out of range
+    """
+    canonical = check_points("canonical", canonical)
+    n = canonical.shape[0]
+    faces = check_ids("faces", faces, n, ndim=2)
+    boundary = check_ids("boundary", boundary, n)
+    if not 0.0 < max_angle_rad < np.pi:
+        raise ValueError(f"Expected max_angle_rad in (0, pi), got {max_angle_rad}")
+    if not window_spacings > 0:
+        raise ValueError(f"Expected window_spacings > 0, got {window_spacings}")
+
+    pts = _flatten(canonical, faces)
+    directed = _directed_edges(faces)
+    _, first = np.unique(_edge_keys(directed, n), return_index=True)
+    edges = directed[first]
+    spacing = float(np.median(np.linalg.norm(pts[edges[:, 0]] - pts[edges[:, 1]], axis=1)))
+    window = window_spacings * spacing
+
+    # Holes (loops turning clockwise) are left out: grasping the rim of a hole is
+    # not a corner or edge grasp of the cloth.
+    loops = [lp for lp in _trace_loops(_boundary_half_edges(faces, n), pts) if _shoelace(pts[lp]) > 0]
+    if not loops:
+        raise ValueError("Expected the faces to have an outer boundary loop, found none")
+    in_boundary = np.zeros(n, bool)
+    in_boundary[boundary] = True
+
+    ids, loop_ids, arcs, chord_ids, chord_fracs, angles, corners, perimeters = [], [], [], [], [], [], [], []
+    row0 = 0
+    for k, loop in enumerate(loops):
+        loop_pts = pts[loop]
+        perimeter = float(np.sum(np.linalg.norm(np.roll(loop_pts, -1, axis=0) - loop_pts, axis=1)))
+        # On a loop shorter than eight windows the chords of a mid-edge vertex would
+        # reach round the neighbouring corners and make it look like a corner too.
+        loop_window = min(window, perimeter / 8.0)
+        arc, edge, frac = _chord_ends(loop_pts, loop_window)
+        ends = (1.0 - frac[..., None]) * loop_pts[edge] + frac[..., None] * loop_pts[(edge + 1) % len(loop)]
+        into = loop_pts - ends[:, 0]
+        out = ends[:, 1] - loop_pts
+        turn = np.arctan2(into[:, 0] * out[:, 1] - into[:, 1] * out[:, 0], np.sum(into * out, axis=1))
+        angle = np.pi - turn
+        # Corners must be boundary vertices of the caller's mesh; a sharp convex
+        # turn always has fewer than six neighbours, so this only guards the contract.
+        sharp = np.where(in_boundary[loop], angle, np.inf)
+        corners.append(row0 + _suppress(sharp, arc, perimeter, loop_window, max_angle_rad))
+        ids.append(loop)
+        loop_ids.append(np.full(len(loop), k, np.int64))
+        arcs.append(arc)
+        chord_ids.append(np.stack([loop[edge], loop[(edge + 1) % len(loop)]], axis=-1))
+        chord_fracs.append(frac)
+        angles.append(angle)
+        perimeters.append(perimeter)
+        row0 += len(loop)
+
+    outline = Outline(
+        vertex_ids=np.concatenate(ids),
+        loop_ids=np.concatenate(loop_ids),
+        arclength_m=np.concatenate(arcs),
+        perimeters_m=np.asarray(perimeters),
+        chord_ids=np.concatenate(chord_ids),
+        chord_fracs=np.concatenate(chord_fracs),
+        interior_angle_rad=np.concatenate(angles),
+        spacing_m=spacing,
+        window_m=window,
+        corner_rows=np.concatenate(corners),
+    )
+    log.debug(
+        "outline: %d loop(s), %d rows, spacing %.4f m, %d corner(s)",
+        len(loops), len(outline.vertex_ids), spacing, len(outline.corner_rows),
+    )
+    return outline
+
+
+def _shoelace(loop_pts: np.ndarray) -> float:
+    """Signed area of a closed polygon (n, 2), positive when counter-clockwise."""
+    x, y = loop_pts[:, 0], loop_pts[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
+def find_corners(
+    canonical,
+    faces,
+    boundary,
+    max_angle_rad: float = DEFAULT_CORNER_MAX_ANGLE_RAD,
+    window_spacings: float = DEFAULT_WINDOW_SPACINGS,
+) -> np.ndarray:
+    """Corner vertices of a cloth from the geometry of its canonical mesh.
+
+    A corner is a boundary vertex where the outer outline turns sharply: its
+    interior angle, measured between chords reaching ``window_spacings`` grid
+    spacings along the outline on each side (which smooths the hex grid's ragged
+    outline), is below ``max_angle_rad``, and it is the sharpest vertex within one
+    chord length along the outline (one physical corner gives one vertex). Concave
+    turns (armpits, notches) and the rims of holes are never corners.
+
+    Parameters
+    ----------
+    canonical : (N, 3) float64, metres, flat rest mesh (``MeshEstimate.canonical``)
+    faces : (M, 3) int vertex ids (``MeshEstimate.faces``), M >= 1
+    boundary : (B,) int vertex ids with fewer than six neighbours
+        (``MeshEstimate.boundary``), B >= 1. The outline's order comes from the
+        faces (edges used by one face); corners are restricted to these ids.
+    max_angle_rad : float in (0, pi), radians, default 130 degrees
+    window_spacings : float > 0, chord half-length in grid spacings (median edge
+        length of the canonical mesh), default 3
+
+    Returns
+    -------
+    (C,) int64 vertex ids, ordered along the outline (cloth on the left of the
+    travel direction with respect to the face winding); C may be 0 (a round cloth)
+
+    Raises
+    ------
+    ValueError : wrong shapes, ids out of range, empty faces or boundary, or a
+        degenerate canonical mesh
+    """
+    return build_outline(canonical, faces, boundary, max_angle_rad, window_spacings).corner_ids

@@ -1,0 +1,36 @@
+"""Default ZeroMQ endpoints of the toolkit's processes: the one place that names the ports.
+
+Every default binds to the loopback interface only. To serve controllers on other
+machines, bind to a routable address (e.g. ``tcp://0.0.0.0:5562``) and turn on CURVE
+(``ipc.transport.CurveServer``); docs/protocol.md lists these ports too.
+
+=================  ========================  ===========  ==========================================
+constant           endpoint                  socket       traffic
+=================  ========================  ===========  ==========================================
+FRAMES             tcp://127.0.0.1:5560      PUB (bind)   RGBDFrame + Heartbeat, from a frame source
+ESTIMATES          tcp://127.0.0.1:5561      PUB (bind)   MeshEstimate + Heartbeat, from perception
+PERCEPTION_CONTROL tcp://127.0.0.1:5562      REP (bind)   Initialise/Reset/SetParameters/Status
+                                                          requests -> StatusReply | ErrorReply
+PLANNER            tcp://127.0.0.1:5563      REP (bind)   GraspRequest -> GraspPlanReply | ErrorReply
+=================  ========================  ===========  ==========================================
+"""
+
+from __future__ import annotations
+
+LOOPBACK = "127.0.0.1"
+
+FRAMES_PORT = 5560
+ESTIMATES_PORT = 5561
+PERCEPTION_CONTROL_PORT = 5562
+PLANNER_PORT = 5563
+
+
+def tcp(host: str, port: int | str) -> str:
+    """``tcp://host:port``; ``port`` may be ``"*"`` to let the system pick a free port."""
+    return f"tcp://{host}:{port}"
+
+
+FRAMES = tcp(LOOPBACK, FRAMES_PORT)
+ESTIMATES = tcp(LOOPBACK, ESTIMATES_PORT)
+PERCEPTION_CONTROL = tcp(LOOPBACK, PERCEPTION_CONTROL_PORT)
+PLANNER = tcp(LOOPBACK, PLANNER_PORT)

@@ -1,0 +1,649 @@
+"""ZeroMQ transport helpers: every process of the toolkit talks through these four classes.
+
+- ``Publisher`` (PUB, binds): publishes messages and a ``Heartbeat`` every period.
+- ``Subscriber`` (SUB, connects): latest-message semantics. A receiver thread drains
+  the socket as fast as messages arrive and keeps only the newest data message, so a
+  slow consumer gets the newest frame, never a backlog, and memory stays bounded
+  whatever the producer's rate. It tracks the age of the last message and logs (and
+  calls back) when the publisher goes silent and when it comes back.
+- ``RequestClient`` (REQ, connects): request/reply with a timeout and retries; after a
+  timeout it closes and reopens its socket ("lazy pirate"), so it never hangs on a
+  dead peer. An ``ErrorReply`` is raised as ``RemoteError``.
+- ``ReplyServer`` (REP, binds): dispatches requests by type to handlers and answers
+  every request, malformed ones with an ``ErrorReply``, then keeps serving.
+
+A service is a thin loop around them, e.g. the perception service::
+
+    with Subscriber(endpoints.FRAMES, accept=(RGBDFrame,)) as frames, \\
+         Publisher(endpoints.ESTIMATES, source="perception") as estimates, \\
+         ReplyServer(endpoints.PERCEPTION_CONTROL, handlers) as control:
+        while not stop.is_set():
+            control.serve_once(timeout_s=0)
+            frame = frames.recv_latest(timeout_s=0.05)
+            if frame is not None:
+                estimates.publish(tracker.step(frame))
+
+Sockets use linger 0 (closing never blocks), ``zmq.MAXMSGSIZE`` at the codec's message
+cap, and small high-water marks. Optional CURVE encryption and client authentication
+(``CurveServer`` for binding sides, ``CurveClient`` for connecting sides) is for
+controllers on other machines; a CURVE server runs its own context and ZAP
+authenticator thread, which accepts only the listed client public keys.
+
+Each object is used from one thread (the one that calls its methods); ``Publisher``
+also sends heartbeats from a thread of its own, serialised with ``publish`` by a lock.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Mapping
+
+import zmq
+import zmq.auth
+from zmq.auth.thread import ThreadAuthenticator
+
+from ipc.codec import DEFAULT_LIMITS, MESSAGE_TYPES, Limits, ProtocolError, _one_line, decode, encode, peek_type
+from ipc.messages import ErrorReply, Heartbeat
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "HEARTBEAT_PERIOD_S",
+    "HWM",
+    "REQUEST_ATTEMPTS",
+    "REQUEST_TIMEOUT_S",
+    "STALE_AFTER_S",
+    "CurveClient",
+    "CurveServer",
+    "Publisher",
+    "RemoteError",
+    "ReplyServer",
+    "RequestClient",
+    "RequestTimeout",
+    "Subscriber",
+]
+
+#: Seconds between two heartbeats of a publisher.
+HEARTBEAT_PERIOD_S = 1.0
+#: Seconds without any message after which a subscriber reports its publisher gone.
+STALE_AFTER_S = 3.0
+#: Seconds a client waits for each reply attempt, and attempts before giving up.
+REQUEST_TIMEOUT_S = 1.0
+REQUEST_ATTEMPTS = 3
+#: High-water mark (whole messages queued per peer) of publishers and subscribers:
+#: small, since only the newest message matters and a 640x480 frame is 1.5 MB.
+HWM = 4
+
+_ZMTP_HEARTBEAT_MS = 1000  # ZMTP pings: drop a half-open TCP connection so ZeroMQ reconnects
+
+
+class RequestTimeout(TimeoutError):
+    """No reply after every attempt: the peer is dead, busy, or refuses our CURVE keys."""
+
+
+class RemoteError(RuntimeError):
+    """The server answered with an ErrorReply; ``reply`` holds it, ``code`` its code."""
+
+    def __init__(self, reply: ErrorReply):
+        super().__init__(f"{reply.code}: {reply.message}")
+        self.reply = reply
+        self.code = reply.code
+
+
+def _check_key(name: str, key: bytes) -> bytes:
+    if not isinstance(key, bytes) or len(key) != 40:
+        raise ValueError(f"{name}: expected a 40-byte Z85 CURVE key, got {type(key).__name__} of length {len(key) if hasattr(key, '__len__') else '?'}")
+    return key
+
+
+@dataclass(frozen=True)
+class CurveServer:
+    """CURVE keys of a binding socket: its key pair and the client public keys it accepts.
+
+    Keys are 40-byte Z85 strings (``zmq.curve_keypair()``, or cert files from
+    ``zmq.auth.create_certificates``).
+    """
+
+    public_key: bytes
+    secret_key: bytes
+    authorized_clients: frozenset
+
+    def __post_init__(self):
+        _check_key("CurveServer.public_key", self.public_key)
+        _check_key("CurveServer.secret_key", self.secret_key)
+        clients = frozenset(self.authorized_clients)
+        if not clients:
+            raise ValueError("CurveServer.authorized_clients: expected at least one client public key")
+        for key in clients:
+            _check_key("CurveServer.authorized_clients", key)
+        object.__setattr__(self, "authorized_clients", clients)
+
+    @classmethod
+    def from_files(cls, secret_key_file: str | Path, authorized_clients_dir: str | Path) -> "CurveServer":
+        """Load the server's ``.key_secret`` cert and every ``.key`` cert in a directory."""
+        public, secret = zmq.auth.load_certificate(secret_key_file)
+        if secret is None:
+            raise ValueError(f"CurveServer: {secret_key_file} holds no secret key")
+        return cls(public, secret, frozenset(zmq.auth.load_certificates(authorized_clients_dir)))
+
+
+@dataclass(frozen=True)
+class CurveClient:
+    """CURVE keys of a connecting socket: its key pair and the server's public key."""
+
+    public_key: bytes
+    secret_key: bytes
+    server_public_key: bytes
+
+    def __post_init__(self):
+        _check_key("CurveClient.public_key", self.public_key)
+        _check_key("CurveClient.secret_key", self.secret_key)
+        _check_key("CurveClient.server_public_key", self.server_public_key)
+
+    @classmethod
+    def from_files(cls, secret_key_file: str | Path, server_public_key_file: str | Path) -> "CurveClient":
+        """Load the client's ``.key_secret`` cert and the server's public ``.key`` cert."""
+        public, secret = zmq.auth.load_certificate(secret_key_file)
+        if secret is None:
+            raise ValueError(f"CurveClient: {secret_key_file} holds no secret key")
+        server_public, _ = zmq.auth.load_certificate(server_public_key_file)
+        return cls(public, secret, server_public)
+
+
+class _AuthorizedKeys:
+    """ZAP credentials provider (pyzmq's callback protocol): accept listed client keys only."""
+
+    def __init__(self, keys: frozenset, endpoint: str):
+        self.keys, self.endpoint = keys, endpoint
+
+    def callback(self, domain: str, key: bytes) -> bool:
+        if key in self.keys:
+            return True
+        log.warning("%s: refused a CURVE client with unknown public key %s", self.endpoint, key.decode("ascii", "replace"))
+        return False
+
+
+class _Socket:
+    """A configured socket with its context; owns a private context only for a CURVE server."""
+
+    def __init__(self, kind: int, endpoint: str, *, bind: bool, limits: Limits, curve, hwm: int | None = None):
+        self.auth = None
+        if isinstance(curve, CurveServer):
+            # The ZAP authenticator is per context; a private one keeps servers independent.
+            self.context = zmq.Context()
+            self.auth = ThreadAuthenticator(self.context)
+            self.auth.start()
+            self.auth.configure_curve_callback("*", credentials_provider=_AuthorizedKeys(curve.authorized_clients, endpoint))
+        else:
+            self.context = zmq.Context.instance()
+        try:
+            self.sock = self.context.socket(kind)
+            self.sock.setsockopt(zmq.LINGER, 0)
+            self.sock.setsockopt(zmq.MAXMSGSIZE, limits.max_message_bytes)
+            if hwm is not None:
+                self.sock.setsockopt(zmq.SNDHWM, hwm)
+                self.sock.setsockopt(zmq.RCVHWM, hwm)
+            if isinstance(curve, CurveServer):
+                self.sock.curve_secretkey = curve.secret_key
+                self.sock.curve_publickey = curve.public_key
+                self.sock.curve_server = True
+            elif isinstance(curve, CurveClient):
+                self.sock.curve_secretkey = curve.secret_key
+                self.sock.curve_publickey = curve.public_key
+                self.sock.curve_serverkey = curve.server_public_key
+            elif curve is not None:
+                raise ValueError(f"curve: expected CurveServer, CurveClient or None, got {type(curve).__name__}")
+            if bind:
+                self.sock.bind(endpoint)
+            else:
+                self.sock.setsockopt(zmq.HEARTBEAT_IVL, _ZMTP_HEARTBEAT_MS)
+                self.sock.setsockopt(zmq.HEARTBEAT_TIMEOUT, 3 * _ZMTP_HEARTBEAT_MS)
+                self.sock.connect(endpoint)
+        except (zmq.ZMQError, ValueError) as e:
+            self.close()
+            raise ValueError(f"{endpoint}: cannot {'bind' if bind else 'connect'} ({e})") from None
+        # The endpoint actually bound: resolves a wildcard port such as tcp://127.0.0.1:*.
+        self.endpoint = self.sock.getsockopt_string(zmq.LAST_ENDPOINT) if bind else endpoint
+
+    def close(self) -> None:
+        if getattr(self, "sock", None) is not None:
+            self.sock.close(linger=0)
+            self.sock = None
+        if self.auth is not None:
+            self.auth.stop()
+            self.auth = None
+            self.context.term()
+
+
+def _recv_message(sock: zmq.Socket, limits: Limits, flags: int = 0) -> list:
+    """Receive one multipart message as zmq.Frames (zero-copy), within ``limits``.
+
+    ZeroMQ delivers all parts at once; parts past the caps are received and dropped so
+    the socket is left at a message boundary, then ProtocolError is raised.
+    Raises zmq.Again when ``flags`` has NOBLOCK and nothing is waiting.
+    """
+    frame = sock.recv(flags, copy=False)
+    frames, count, total = [frame], 1, len(frame)
+    while frame.more:
+        frame = sock.recv(copy=False)
+        count += 1
+        total += len(frame)
+        if count <= limits.max_frames and total <= limits.max_message_bytes:
+            frames.append(frame)
+    if count > limits.max_frames:
+        raise ProtocolError(f"message has {count} frames, over the limit of {limits.max_frames}")
+    if total > limits.max_message_bytes:
+        raise ProtocolError(f"message of {total} bytes exceeds the limit of {limits.max_message_bytes}")
+    return frames
+
+
+class Publisher:
+    """PUB socket that binds ``endpoint`` and publishes messages plus heartbeats.
+
+    endpoint : e.g. ``ipc.endpoints.ESTIMATES``, or ``tcp://127.0.0.1:*`` for a free port
+        (``endpoint`` then tells the one bound)
+    source : name sent in heartbeats, e.g. "perception"
+    heartbeat_period_s : seconds between heartbeats, sent from a background thread
+    depth_scale : send RGBDFrame depth as uint16 with this many units per metre
+        (``codec.encode``); None sends float32 metres
+    hwm : messages queued per subscriber before new ones are dropped for it
+    curve : CurveServer to encrypt and accept only listed subscribers, or None
+
+    ``publish`` never blocks: a subscriber that cannot keep up loses messages (its
+    Subscriber keeps the newest anyway).
+    """
+
+    def __init__(
+        self,
+        endpoint: str,
+        *,
+        source: str,
+        heartbeat_period_s: float = HEARTBEAT_PERIOD_S,
+        depth_scale: float | None = None,
+        hwm: int = HWM,
+        limits: Limits = DEFAULT_LIMITS,
+        curve: CurveServer | None = None,
+    ):
+        Heartbeat(source=source, period_s=heartbeat_period_s)  # validates both before binding
+        self.source = source
+        self.heartbeat_period_s = float(heartbeat_period_s)
+        self.depth_scale = depth_scale
+        self._socket = _Socket(zmq.PUB, endpoint, bind=True, limits=limits, curve=curve, hwm=hwm)
+        self.endpoint = self._socket.endpoint
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._beat_thread = threading.Thread(target=self._beat, name=f"heartbeat {self.endpoint}", daemon=True)
+        self._beat_thread.start()
+        log.info("%s: publishing as %r", self.endpoint, source)
+
+    def publish(self, msg) -> None:
+        """Encode and send ``msg`` (any message type); raises ProtocolError if it cannot travel."""
+        frames = encode(msg, depth_scale=self.depth_scale)
+        with self._lock:
+            if self._socket.sock is None:
+                raise ValueError(f"{self.endpoint}: publisher is closed")
+            self._socket.sock.send_multipart(frames, copy=False)
+
+    def _beat(self) -> None:
+        seq = 0
+        while True:
+            beat = Heartbeat(source=self.source, seq=seq, timestamp_s=time.time(), period_s=self.heartbeat_period_s)
+            with self._lock:
+                if self._socket.sock is None:
+                    return
+                self._socket.sock.send_multipart(encode(beat))
+            seq += 1
+            if self._stop.wait(self.heartbeat_period_s):
+                return
+
+    def close(self) -> None:
+        """Stop heartbeats and close the socket; queued messages are dropped."""
+        self._stop.set()
+        self._beat_thread.join()
+        with self._lock:
+            self._socket.close()
+
+    def __enter__(self) -> "Publisher":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class Subscriber:
+    """SUB socket that connects to a publisher and hands out only the newest message.
+
+    endpoint : the publisher's endpoint, e.g. ``ipc.endpoints.FRAMES``
+    accept : message classes to keep, e.g. ``(RGBDFrame,)``; others are dropped. None
+        keeps every type. Heartbeats are always consumed here, never returned.
+    stale_after_s : seconds without any message (data or heartbeat) after which the
+        publisher counts as gone: logged as a warning and ``on_liveness(False, age_s)``
+        is called; when messages flow again, logged and ``on_liveness(True, gap_s)``.
+        ``on_liveness`` runs on the receiver thread: keep it short.
+    hwm, limits, curve : queue size, decoder caps, CurveClient or None
+
+    Counters (ints, read any time): ``received`` (messages of any type), ``skipped``
+    (data messages replaced by a newer one before ``recv_latest`` took them),
+    ``malformed`` (dropped as ProtocolError, each logged).
+    """
+
+    def __init__(
+        self,
+        endpoint: str,
+        *,
+        accept: tuple[type, ...] | None = None,
+        stale_after_s: float = STALE_AFTER_S,
+        on_liveness: Callable[[bool, float], None] | None = None,
+        hwm: int = HWM,
+        limits: Limits = DEFAULT_LIMITS,
+        curve: CurveClient | None = None,
+    ):
+        if not (math.isfinite(stale_after_s) and stale_after_s > 0):
+            raise ValueError(f"Subscriber.stale_after_s: expected a positive number, got {stale_after_s}")
+        known = set(MESSAGE_TYPES.values())
+        if accept is not None and (not accept or any(cls not in known for cls in accept)):
+            raise ValueError(f"Subscriber.accept: expected message classes or None, got {accept!r}")
+        self.endpoint = endpoint
+        self.accept = None if accept is None else tuple(accept)
+        self.stale_after_s = float(stale_after_s)
+        self.limits = limits
+        self._on_liveness = on_liveness
+        self._socket = _Socket(zmq.SUB, endpoint, bind=False, limits=limits, curve=curve, hwm=hwm)
+        self._socket.sock.setsockopt(zmq.SUBSCRIBE, b"")
+        self._cond = threading.Condition()
+        self._latest: list | None = None
+        self._last_heartbeat: Heartbeat | None = None
+        self._start = time.monotonic()
+        self._last_rx: float | None = None
+        self._stale = False
+        self.received = self.skipped = self.malformed = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=f"subscriber {endpoint}", daemon=True)
+        self._thread.start()
+
+    # -- consumer side ------------------------------------------------------
+
+    def recv_latest(self, timeout_s: float):
+        """The newest data message not yet returned, waiting up to ``timeout_s`` seconds.
+
+        Returns a decoded message, or None on timeout (or once closed). Messages that
+        arrived before it and were not taken are skipped, never queued.
+        """
+        deadline = time.monotonic() + timeout_s
+        while True:
+            with self._cond:
+                while self._latest is None:
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0 or self._stop.is_set():
+                        return None
+                    self._cond.wait(remaining)
+                frames, self._latest = self._latest, None
+            try:
+                return decode(frames, self.limits)
+            except ProtocolError as e:
+                self._count_malformed(e)
+
+    @property
+    def age_s(self) -> float:
+        """Seconds since the last message of any type; ``math.inf`` if none yet."""
+        last = self._last_rx
+        return math.inf if last is None else time.monotonic() - last
+
+    @property
+    def stale(self) -> bool:
+        """True while the publisher counts as gone (no message for ``stale_after_s``)."""
+        return self._stale
+
+    @property
+    def last_heartbeat(self) -> Heartbeat | None:
+        """The newest Heartbeat received, or None."""
+        return self._last_heartbeat
+
+    def close(self) -> None:
+        """Stop the receiver thread and close the socket; a waiting ``recv_latest`` returns None."""
+        self._stop.set()
+        with self._cond:
+            self._cond.notify_all()
+        self._thread.join()
+        self._socket.close()
+
+    def __enter__(self) -> "Subscriber":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- receiver thread ----------------------------------------------------
+
+    def _run(self) -> None:
+        sock = self._socket.sock
+        tick_ms = int(1000 * min(0.05, self.stale_after_s / 4))  # how late a stale report may come
+        while not self._stop.is_set():
+            if sock.poll(tick_ms, zmq.POLLIN):
+                # Drain everything waiting: only the newest data message is kept.
+                while True:
+                    try:
+                        frames = _recv_message(sock, self.limits, zmq.NOBLOCK)
+                    except zmq.Again:
+                        break
+                    except ProtocolError as e:
+                        self._count_malformed(e)
+                        continue
+                    self._on_message(frames)
+            self._check_stale()
+
+    def _on_message(self, frames: list) -> None:
+        now = time.monotonic()
+        gap = now - (self._last_rx if self._last_rx is not None else self._start)
+        self._last_rx = now
+        self.received += 1
+        if self._stale:
+            self._stale = False
+            log.info("%s: receiving again after %.1f s of silence", self.endpoint, gap)
+            self._notify(True, gap)
+        try:
+            cls = peek_type(frames, self.limits)
+            if cls is Heartbeat:
+                self._on_heartbeat(decode(frames, self.limits))
+                return
+        except ProtocolError as e:
+            self._count_malformed(e)
+            return
+        if self.accept is not None and cls not in self.accept:
+            log.debug("%s: dropped a %s (not accepted)", self.endpoint, cls.__name__)
+            return
+        with self._cond:
+            if self._latest is not None:
+                self.skipped += 1
+            self._latest = frames
+            self._cond.notify_all()
+
+    def _on_heartbeat(self, beat: Heartbeat) -> None:
+        previous = self._last_heartbeat
+        if previous is not None and (beat.source != previous.source or beat.seq < previous.seq):
+            log.info("%s: publisher %r restarted (heartbeat seq %d after %d)", self.endpoint, beat.source, beat.seq, previous.seq)
+        self._last_heartbeat = beat
+
+    def _check_stale(self) -> None:
+        age = time.monotonic() - (self._last_rx if self._last_rx is not None else self._start)
+        if not self._stale and age > self.stale_after_s:
+            self._stale = True
+            name = f" {self._last_heartbeat.source!r}" if self._last_heartbeat else ""
+            log.warning("%s: no message from publisher%s for %.1f s; gone?", self.endpoint, name, age)
+            self._notify(False, age)
+
+    def _notify(self, alive: bool, seconds: float) -> None:
+        if self._on_liveness is None:
+            return
+        try:
+            self._on_liveness(alive, seconds)
+        except Exception:  # a faulty callback must not kill the receiver thread
+            log.exception("%s: on_liveness callback failed", self.endpoint)
+
+    def _count_malformed(self, error: ProtocolError) -> None:
+        with self._cond:
+            self.malformed += 1
+        log.warning("%s: dropped a malformed message: %s", self.endpoint, error)
+
+
+class RequestClient:
+    """REQ client with a timeout per attempt and a bounded number of attempts.
+
+    endpoint : the server's endpoint, e.g. ``ipc.endpoints.PLANNER``
+    timeout_s : seconds to wait for a reply per attempt
+    attempts : sends before giving up; the requests of this protocol are idempotent,
+        so resending after a lost reply is safe
+    limits, curve : decoder caps for replies, CurveClient or None
+
+    After a timeout the REQ socket is closed and a new one opened (REQ cannot send
+    again before it has a reply); a late reply to the old socket is discarded.
+    """
+
+    def __init__(
+        self,
+        endpoint: str,
+        *,
+        timeout_s: float = REQUEST_TIMEOUT_S,
+        attempts: int = REQUEST_ATTEMPTS,
+        limits: Limits = DEFAULT_LIMITS,
+        curve: CurveClient | None = None,
+    ):
+        if not (math.isfinite(timeout_s) and timeout_s > 0):
+            raise ValueError(f"RequestClient.timeout_s: expected a positive number, got {timeout_s}")
+        if isinstance(attempts, bool) or not isinstance(attempts, int) or attempts < 1:
+            raise ValueError(f"RequestClient.attempts: expected a positive integer, got {attempts!r}")
+        self.endpoint, self.timeout_s, self.attempts = endpoint, float(timeout_s), attempts
+        self.limits, self.curve = limits, curve
+        self._socket: _Socket | None = None
+        self._open()  # connect now so that a bad endpoint fails here, not at the first request
+
+    def _open(self) -> _Socket:
+        self._socket = _Socket(zmq.REQ, self.endpoint, bind=False, limits=self.limits, curve=self.curve)
+        return self._socket
+
+    def request(self, msg, *, timeout_s: float | None = None):
+        """Send ``msg`` and return the decoded reply.
+
+        timeout_s : per-attempt timeout for this call; None uses the client's.
+        Raises RequestTimeout after ``attempts`` attempts without a reply, RemoteError
+        when the reply is an ErrorReply, ProtocolError when ``msg`` cannot be encoded or
+        the reply cannot be decoded.
+        """
+        frames = encode(msg)
+        timeout_ms = int(1000 * (self.timeout_s if timeout_s is None else timeout_s))
+        for attempt in range(1, self.attempts + 1):
+            sock = (self._socket or self._open()).sock
+            sock.setsockopt(zmq.SNDTIMEO, timeout_ms)
+            try:
+                sock.send_multipart(frames, copy=False)
+                if sock.poll(timeout_ms, zmq.POLLIN):
+                    reply = decode(_recv_message(sock, self.limits), self.limits)
+                    if isinstance(reply, ErrorReply):
+                        raise RemoteError(reply)
+                    return reply
+            except zmq.Again:
+                pass  # could not even queue the request: same as no reply
+            log.warning("%s: no reply to %s within %d ms (attempt %d of %d)", self.endpoint, type(msg).__name__, timeout_ms, attempt, self.attempts)
+            self._socket.close()
+            self._socket = None
+        raise RequestTimeout(f"{self.endpoint}: no reply to {type(msg).__name__} after {self.attempts} attempts of {timeout_ms} ms")
+
+    def close(self) -> None:
+        if self._socket is not None:
+            self._socket.close()
+            self._socket = None
+
+    def __enter__(self) -> "RequestClient":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class ReplyServer:
+    """REP server that binds ``endpoint`` and answers each request with one reply.
+
+    handlers : request class -> callable(request) -> reply message. A request of another
+        type is answered ErrorReply("unsupported"); one that cannot be decoded,
+        ErrorReply("protocol"); a handler raising ValueError, ErrorReply("invalid");
+        raising anything else (logged with its traceback), ErrorReply("internal").
+        A handler may also return an ErrorReply itself (e.g. "not_ready").
+    limits, curve : decoder caps for requests, CurveServer or None
+
+    Serve from one thread: ``serve_once`` inside a service's own loop, or
+    ``serve_forever`` in a thread of its own.
+    """
+
+    def __init__(
+        self,
+        endpoint: str,
+        handlers: Mapping[type, Callable],
+        *,
+        limits: Limits = DEFAULT_LIMITS,
+        curve: CurveServer | None = None,
+    ):
+        known = set(MESSAGE_TYPES.values())
+        if not handlers or any(cls not in known or not callable(fn) for cls, fn in handlers.items()):
+            raise ValueError("ReplyServer.handlers: expected a non-empty mapping from message class to callable")
+        self.handlers = dict(handlers)
+        self.limits = limits
+        self._socket = _Socket(zmq.REP, endpoint, bind=True, limits=limits, curve=curve)
+        self.endpoint = self._socket.endpoint
+        log.info("%s: serving %s", self.endpoint, ", ".join(cls.__name__ for cls in self.handlers))
+
+    def serve_once(self, timeout_s: float = 0.0) -> bool:
+        """Answer at most one request, waiting up to ``timeout_s``; True if one was answered."""
+        sock = self._socket.sock
+        if not sock.poll(int(1000 * timeout_s), zmq.POLLIN):
+            return False
+        try:
+            request = decode(_recv_message(sock, self.limits), self.limits)
+        except ProtocolError as e:
+            log.warning("%s: malformed request: %s", self.endpoint, e)
+            reply = ErrorReply("protocol", str(e))
+        else:
+            reply = self._handle(request)
+        try:
+            frames = encode(reply)
+        except ProtocolError as e:
+            log.error("%s: reply %s cannot be encoded: %s", self.endpoint, type(reply).__name__, e)
+            frames = encode(ErrorReply("internal", _one_line(f"reply could not be encoded: {e}"), getattr(reply, "request_id", 0)))
+        sock.send_multipart(frames, copy=False)
+        return True
+
+    def _handle(self, request):
+        request_id = getattr(request, "request_id", 0)
+        handler = self.handlers.get(type(request))
+        if handler is None:
+            served = ", ".join(cls.__name__ for cls in self.handlers)
+            return ErrorReply("unsupported", f"{type(request).__name__} is not served here; expected one of {served}", request_id)
+        try:
+            reply = handler(request)
+        except ValueError as e:
+            return ErrorReply("invalid", _one_line(str(e)) or type(e).__name__, request_id)
+        except Exception as e:  # any handler failure is answered, and the server keeps serving
+            log.exception("%s: handler for %s failed", self.endpoint, type(request).__name__)
+            return ErrorReply("internal", _one_line(f"{type(e).__name__}: {e}"), request_id)
+        if type(reply) not in MESSAGE_TYPES.values():
+            log.error("%s: handler for %s returned %s", self.endpoint, type(request).__name__, type(reply).__name__)
+            return ErrorReply("internal", f"handler returned {type(reply).__name__}, not a message", request_id)
+        return reply
+
+    def serve_forever(self, stop: threading.Event, poll_s: float = 0.1) -> None:
+        """Serve until ``stop`` is set, checking it every ``poll_s`` seconds."""
+        while not stop.is_set():
+            self.serve_once(poll_s)
+
+    def close(self) -> None:
+        self._socket.close()
+
+    def __enter__(self) -> "ReplyServer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,308 @@
+"""Feature correspondences for the correspondence term (paper, section III-B).
+
+Features found on the object in the first frame are bound to the canonical mesh by
+barycentric coordinates (eq. 11-12). In later frames they are matched with the paper's
+rules: nearest descriptor by distance, only among features within a gate around the
+location predicted from the previous estimate, keeping the best half. Matching against
+the first frame's features keeps correspondences from drifting over long sequences; the
+previous frame's features (bound through the previous estimate) are matched as well, so
+the term survives appearance changes such as rotation out of the image plane.
+
+Detectors: SURF (the paper's) when this OpenCV build has it, else SIFT; ORB for speed.
+Pyramidal KLT tracking of the bound points is the fastest option (``KLTCorrespondences``).
+
+Images are (H, W) uint8 grey; points are (P, 2) float32 pixel coordinates (u, v).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from perception.camera import project
+from perception.raster import locate_pixels
+
+log = logging.getLogger(__name__)
+
+FEATURE_KINDS = ("auto", "surf", "sift", "orb", "klt")
+
+
+def surf_available() -> bool:
+    """True when this OpenCV build ships the (patented) SURF detector."""
+    try:
+        cv2.xfeatures2d.SURF_create()  # type: ignore[attr-defined]
+        return True
+    except (AttributeError, cv2.error):
+        return False
+
+
+def resolve_kind(kind: str) -> str:
+    """The detector actually used for ``kind``: 'auto' means SURF if available, else SIFT."""
+    if kind not in FEATURE_KINDS:
+        raise ValueError(f"features: expected one of {FEATURE_KINDS}, got {kind!r}")
+    if kind == "auto":
+        return "surf" if surf_available() else "sift"
+    if kind == "surf" and not surf_available():
+        raise ValueError("features: SURF is not in this OpenCV build (it is patented); use sift, orb or klt")
+    return kind
+
+
+@dataclass
+class Keypoints:
+    """Detected features: xy (P, 2) float32 pixels; desc (P, D) float32 or uint8 (binary)."""
+
+    xy: np.ndarray
+    desc: np.ndarray
+    binary: bool
+
+    def __len__(self):
+        return len(self.xy)
+
+    def subset(self, idx) -> "Keypoints":
+        return Keypoints(self.xy[idx], self.desc[idx], self.binary)
+
+
+class Detector:
+    """Wraps an OpenCV detector/descriptor; ``detect(grey, mask)`` returns Keypoints."""
+
+    def __init__(self, kind: str, max_features: int):
+        self.kind = resolve_kind(kind)
+        if self.kind == "klt":
+            raise ValueError("features: klt tracks points, it has no descriptor detector")
+        self.max_features = int(max_features)
+        if self.kind == "surf":
+            self._cv = cv2.xfeatures2d.SURF_create(hessianThreshold=300)  # type: ignore[attr-defined]
+        elif self.kind == "sift":
+            self._cv = cv2.SIFT_create(nfeatures=self.max_features, contrastThreshold=0.02)
+        else:
+            self._cv = cv2.ORB_create(nfeatures=self.max_features, fastThreshold=10, edgeThreshold=15, patchSize=15)
+        self.binary = self.kind == "orb"
+
+    def detect(self, grey: np.ndarray, mask: np.ndarray) -> Keypoints:
+        empty = Keypoints(np.zeros((0, 2), np.float32), np.zeros((0, 32 if self.binary else 64), np.uint8 if self.binary else np.float32), self.binary)
+        ys, xs = np.nonzero(mask)
+        if len(xs) == 0:
+            return empty
+        # Detect in the object's bounding box only: most of a frame is background.
+        x0, x1, y0, y1 = xs.min(), xs.max() + 1, ys.min(), ys.max() + 1
+        pad = 16
+        x0, y0 = max(0, x0 - pad), max(0, y0 - pad)
+        x1, y1 = min(grey.shape[1], x1 + pad), min(grey.shape[0], y1 + pad)
+        roi_mask = mask[y0:y1, x0:x1].astype(np.uint8) * 255
+        kps, desc = self._cv.detectAndCompute(np.ascontiguousarray(grey[y0:y1, x0:x1]), roi_mask)
+        if desc is None or len(kps) == 0:
+            return empty
+        if len(kps) > self.max_features:
+            order = np.argsort([-k.response for k in kps])[: self.max_features]
+            kps = [kps[i] for i in order]
+            desc = desc[order]
+        xy = np.array([k.pt for k in kps], np.float32) + np.array([x0, y0], np.float32)
+        return Keypoints(xy, desc if self.binary else desc.astype(np.float32), self.binary)
+
+
+def descriptor_distances(a: np.ndarray, b: np.ndarray, binary: bool) -> np.ndarray:
+    """(P, Q) float32 distances: Hamming for binary descriptors, Euclidean otherwise."""
+    if len(a) == 0 or len(b) == 0:
+        return np.zeros((len(a), len(b)), np.float32)
+    if binary:
+        x = np.unpackbits(a, axis=1).astype(np.float32)
+        y = np.unpackbits(b, axis=1).astype(np.float32)
+        return (x @ (1 - y).T + (1 - x) @ y.T).astype(np.float32)
+    aa = np.einsum("ij,ij->i", a, a)[:, None]
+    bb = np.einsum("ij,ij->i", b, b)[None, :]
+    return np.sqrt(np.maximum(aa + bb - 2.0 * (a @ b.T), 0.0)).astype(np.float32)
+
+
+def match_gated(model: Keypoints, predicted_xy: np.ndarray, current: Keypoints, gate_px: float,
+                keep_fraction: float = 0.5):
+    """The paper's putative matching.
+
+    For each model feature, the nearest current descriptor among current features lying
+    within ``gate_px`` of its predicted location; each current feature is used once (by
+    its closest model feature); then the best ``keep_fraction`` by descriptor distance.
+
+    predicted_xy : (P, 2) float predicted pixel of each model feature (NaN: not predicted)
+    returns (model_idx (K,), current_idx (K,)) int arrays
+    """
+    if len(model) == 0 or len(current) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    dist = descriptor_distances(model.desc, current.desc, model.binary)
+    gap = np.linalg.norm(predicted_xy[:, None, :] - current.xy[None, :, :], axis=2)
+    dist = np.where(gap <= gate_px, dist, np.inf)  # NaN predictions fail the gate too
+    best = np.argmin(dist, axis=1)
+    best_d = dist[np.arange(len(best)), best]
+    m_idx = np.flatnonzero(np.isfinite(best_d))
+    if len(m_idx) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    c_idx = best[m_idx]
+    d = best_d[m_idx]
+    # One model feature per current feature: the closest in descriptor space wins.
+    order = np.lexsort((d, c_idx))
+    first = np.ones(len(order), bool)
+    first[1:] = c_idx[order][1:] != c_idx[order][:-1]
+    sel = order[first]
+    m_idx, c_idx, d = m_idx[sel], c_idx[sel], d[sel]
+    n_keep = max(1, int(np.ceil(keep_fraction * len(d))))
+    top = np.argsort(d, kind="stable")[:n_keep]
+    return m_idx[top], c_idx[top]
+
+
+@dataclass
+class BoundFeatures:
+    """Features bound to the mesh: keypoints plus face id (P,) and barycentric (P, 3)."""
+
+    keypoints: Keypoints
+    face_ids: np.ndarray
+    bary: np.ndarray
+
+    def __len__(self):
+        return len(self.face_ids)
+
+
+def bind_points(xy: np.ndarray, V: np.ndarray, faces: np.ndarray, K: np.ndarray, shape: tuple[int, int]):
+    """Bind pixels to the mesh V as seen in an image of ``shape`` (H, W) (paper eq. 11).
+
+    Where the projected mesh overlaps itself, a pixel is bound to the face nearest the camera.
+    returns (face_ids (P,) int64 with -1 where no face covers the pixel, bary (P, 3))
+    """
+    return locate_pixels(xy, project(V, K), faces, V[:, 2], shape)
+
+
+def bind(kp: Keypoints, V: np.ndarray, faces: np.ndarray, K: np.ndarray, shape) -> BoundFeatures:
+    face_ids, bary = bind_points(kp.xy, V, faces, K, shape)
+    ok = face_ids >= 0
+    return BoundFeatures(kp.subset(ok), face_ids[ok], bary[ok])
+
+
+def predict_xy(bound: BoundFeatures, V: np.ndarray, faces: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(P, 2) predicted pixels of bound features for mesh V (paper eq. 12, then projection)."""
+    pts = np.einsum("pk,pkj->pj", bound.bary, V[faces[bound.face_ids]])
+    return project(pts, K)
+
+
+class DescriptorCorrespondences:
+    """Matches features of each frame to the first frame's and the previous frame's bound features."""
+
+    def __init__(self, kind: str, max_features: int, gate_px: float, keep_fraction: float, match_previous: bool):
+        self.detector = Detector(kind, max_features)
+        self.gate_px = gate_px
+        self.keep_fraction = keep_fraction
+        self.match_previous = match_previous
+        self.first: BoundFeatures | None = None
+        self.previous: BoundFeatures | None = None
+        self._current: Keypoints | None = None
+
+    @property
+    def n_model(self) -> int:
+        return len(self.first) if self.first is not None else 0
+
+    def initialise(self, grey, mask, V, faces, K):
+        self.first = bind(self.detector.detect(grey, mask), V, faces, K, grey.shape)
+        self.previous = None
+        log.debug("bound %d first-frame features", len(self.first))
+
+    def match(self, grey, mask, V_pred, faces, K):
+        """Matches for a new frame: (face_ids (P,), bary (P, 3), xy (P, 2) pixels in this frame)."""
+        cur = self.detector.detect(grey, mask)
+        self._current = cur
+        faces_out, bary_out, xy_out = [], [], []
+        used = np.zeros(len(cur), bool)
+        for model in (self.first, self.previous if self.match_previous else None):
+            if model is None or len(model) == 0:
+                continue
+            pred = predict_xy(model, V_pred, faces, K)
+            mi, ci = match_gated(model.keypoints, pred, cur, self.gate_px, self.keep_fraction)
+            fresh = ~used[ci]
+            mi, ci = mi[fresh], ci[fresh]
+            used[ci] = True
+            faces_out.append(model.face_ids[mi])
+            bary_out.append(model.bary[mi])
+            xy_out.append(cur.xy[ci])
+        if not faces_out:
+            return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 2), np.float32)
+        return np.concatenate(faces_out), np.concatenate(bary_out), np.concatenate(xy_out)
+
+    def update(self, grey, mask, V, faces, K):
+        """After solving a frame: bind its features through the estimate, for the next frame."""
+        if self.match_previous and self._current is not None:
+            self.previous = bind(self._current, V, faces, K, grey.shape)
+
+
+class KLTCorrespondences:
+    """Pyramidal Lucas-Kanade tracking of points bound to the mesh.
+
+    Points are found (Shi-Tomasi corners) and bound in the first frame, tracked frame to
+    frame starting from where the previous estimate predicts them, and kept only when
+    tracking back lands within ``fb_max_px`` of the start. When fewer than half remain,
+    new points are found and bound through the current estimate.
+    """
+
+    def __init__(self, max_features: int, fb_max_px: float = 1.0):
+        self.max_features = int(max_features)
+        self.fb_max_px = fb_max_px
+        self.bound: BoundFeatures | None = None
+        self.xy: np.ndarray | None = None
+        self._grey = None
+        self._target = 0
+        self._lk = dict(winSize=(21, 21), maxLevel=3,
+                        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+
+    @property
+    def n_model(self) -> int:
+        return len(self.bound) if self.bound is not None else 0
+
+    def _seed(self, grey, mask, V, faces, K):
+        pts = cv2.goodFeaturesToTrack(grey, self.max_features, 0.01, 5, mask=mask.astype(np.uint8) * 255)
+        xy = np.zeros((0, 2), np.float32) if pts is None else pts.reshape(-1, 2).astype(np.float32)
+        kp = Keypoints(xy, np.zeros((len(xy), 0), np.float32), False)
+        return bind(kp, V, faces, K, grey.shape)
+
+    def initialise(self, grey, mask, V, faces, K):
+        self.bound = self._seed(grey, mask, V, faces, K)
+        self.xy = self.bound.keypoints.xy.copy()
+        self._target = len(self.bound)
+        self._grey = grey
+
+    def match(self, grey, mask, V_pred, faces, K):
+        empty = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 2), np.float32))
+        if self.bound is None or len(self.bound) == 0 or self._grey is None:
+            return empty
+        guess = predict_xy(self.bound, V_pred, faces, K).astype(np.float32)
+        guess = np.where(np.isfinite(guess), guess, self.xy)
+        p0 = self.xy.reshape(-1, 1, 2)
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(self._grey, grey, p0, guess.reshape(-1, 1, 2).copy(),
+                                             flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk)
+        pb, stb, _ = cv2.calcOpticalFlowPyrLK(grey, self._grey, p1, p0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk)
+        fb = np.linalg.norm((pb - p0).reshape(-1, 2), axis=1)
+        xy = p1.reshape(-1, 2)
+        h, w = grey.shape
+        cols = np.clip(np.rint(xy[:, 0]).astype(int), 0, w - 1)
+        rows = np.clip(np.rint(xy[:, 1]).astype(int), 0, h - 1)
+        ok = (st.ravel() == 1) & (stb.ravel() == 1) & (fb < self.fb_max_px) & mask[rows, cols]
+        ok &= (xy[:, 0] >= 0) & (xy[:, 0] < w) & (xy[:, 1] >= 0) & (xy[:, 1] < h)
+        self.bound = BoundFeatures(self.bound.keypoints.subset(ok), self.bound.face_ids[ok], self.bound.bary[ok])
+        self.xy = xy[ok]
+        self._grey = grey
+        return self.bound.face_ids, self.bound.bary, self.xy
+
+    def update(self, grey, mask, V, faces, K):
+        self._grey = grey
+        if self.bound is not None and len(self.bound) < 0.5 * self._target:
+            fresh = self._seed(grey, mask, V, faces, K)
+            self.bound = BoundFeatures(
+                Keypoints(np.concatenate([self.bound.keypoints.xy, fresh.keypoints.xy]),
+                          np.zeros((len(self.bound) + len(fresh), 0), np.float32), False),
+                np.concatenate([self.bound.face_ids, fresh.face_ids]),
+                np.concatenate([self.bound.bary, fresh.bary]))
+            self.xy = np.concatenate([self.xy, fresh.keypoints.xy])
+
+
+def make_correspondences(kind: str, max_features: int, gate_px: float, keep_fraction: float, match_previous: bool):
+    """The correspondence source for a feature kind (see FEATURE_KINDS)."""
+    kind = resolve_kind(kind)
+    if kind == "klt":
+        return KLTCorrespondences(max_features)
+    return DescriptorCorrespondences(kind, max_features, gate_px, keep_fraction, match_previous)

@@ -1,0 +1,105 @@
+"""Laying the canonical mesh over the object in the first frame (paper, section III-A).
+
+The object's 3D points are fitted with a plane; a hexagonal grid with the requested
+spacing is laid in that plane, oriented with the image axes; the grid vertices whose
+image falls on the object mask are kept, and each is lifted onto the measured surface
+along its camera ray. A mesh built off-line (e.g. ``rectangle_mesh`` of a known size)
+is placed the same way, centred on the object and aligned with its principal axes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from perception.camera import pixel_index, project, rays
+from perception.mesh import CanonicalMesh, lattice_covering, lattice_to_xy, mesh_from_lattice
+from perception.observation import Observation
+
+
+class InitialisationError(ValueError):
+    """The first frame cannot carry a mesh (empty mask, no depth, object too small)."""
+
+
+def _object_points(obs: Observation) -> np.ndarray:
+    ys, xs = np.nonzero(obs.mask & (obs.depth_m > 0))
+    if len(xs) < 30:
+        raise InitialisationError(f"the object mask has {len(xs)} pixels with depth; at least 30 are needed")
+    step = max(1, len(xs) // 20000)
+    uv = np.column_stack([xs[::step], ys[::step]]).astype(np.float64)
+    return rays(uv, obs.K) * obs.depth_m[ys[::step], xs[::step], None]
+
+
+def object_frame(points: np.ndarray):
+    """Plane frame of an object's points (P, 3): centroid (3,), in-plane axes u, v (3,), normal (3,).
+
+    The normal faces the camera; u follows the image x axis as closely as the plane allows,
+    v completes a right-handed frame (so v follows the image y axis).
+    """
+    c = points.mean(axis=0)
+    n = np.linalg.svd(points - c, full_matrices=False)[2][2]
+    if n @ c > 0:  # face the camera at the origin
+        n = -n
+    x = np.array([1.0, 0.0, 0.0])
+    u = x - (x @ n) * n
+    if np.linalg.norm(u) < 1e-6:  # plane seen edge-on along x
+        y = np.array([0.0, 1.0, 0.0])
+        u = y - (y @ n) * n
+    u /= np.linalg.norm(u)
+    v = np.cross(-n, u)  # -n points away from the camera, like +z: (u, v, -n) right-handed as (x, y, z)
+    return c, u, v, n
+
+
+def lift(points_plane: np.ndarray, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
+    """Move points onto the measured surface along their camera rays.
+
+    points_plane : (N, 3) camera-frame points (on the fitted plane)
+    returns (lifted (N, 3), on_object (N,) bool); points without depth stay where they were
+    """
+    uv = project(points_plane, obs.K)
+    h, w = obs.mask.shape
+    cols, rows, inside = pixel_index(uv, w, h)
+    d = np.where(inside, obs.depth_m[rows, cols], 0.0).astype(np.float64)
+    on = inside & obs.mask[rows, cols]
+    has = on & (d > 0)
+    lifted = points_plane.copy()
+    lifted[has] = rays(uv[has], obs.K) * d[has, None]
+    return lifted, on
+
+
+def mesh_from_mask(obs: Observation, spacing_m: float) -> tuple[CanonicalMesh, np.ndarray]:
+    """Build the canonical mesh over the object of ``obs``.
+
+    returns (mesh, vertices (N, 3) float64 metres in the camera frame)
+    """
+    pts = _object_points(obs)
+    c, u, v, _ = object_frame(pts)
+    pu, pv = (pts - c) @ u, (pts - c) @ v
+    lat = lattice_covering((pu.min(), pu.max()), (pv.min(), pv.max()), spacing_m)
+    xy = lattice_to_xy(lat, spacing_m)
+    on_plane = c + xy[:, :1] * u + xy[:, 1:] * v
+    _, on = lift(on_plane, obs)
+    try:
+        mesh = mesh_from_lattice(lat[on], spacing_m)
+    except ValueError as e:
+        raise InitialisationError(str(e)) from None
+    xy = mesh.material_xy
+    lifted, _ = lift(c + xy[:, :1] * u + xy[:, 1:] * v, obs)
+    return mesh, lifted
+
+
+def place_mesh(mesh: CanonicalMesh, obs: Observation) -> np.ndarray:
+    """Place an off-line mesh on the object: centred, longest side along the object's longest axis.
+
+    returns (N, 3) float64 vertices in the camera frame, lifted onto the surface where seen
+    """
+    pts = _object_points(obs)
+    c, u, v, _ = object_frame(pts)
+    xy = mesh.material_xy - mesh.material_xy.mean(axis=0)
+    obj_uv = np.column_stack([(pts - c) @ u, (pts - c) @ v])
+    ou = np.linalg.svd(obj_uv - obj_uv.mean(axis=0), full_matrices=False)[2][0]
+    mu = np.linalg.svd(xy, full_matrices=False)[2][0]
+    ang = np.arctan2(ou[1], ou[0]) - np.arctan2(mu[1], mu[0])
+    R = np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
+    xy = xy @ R.T + obj_uv.mean(axis=0)
+    lifted, _ = lift(c + xy[:, :1] * u + xy[:, 1:] * v, obs)
+    return lifted

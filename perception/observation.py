@@ -1,0 +1,102 @@
+"""What the tracker takes from one frame once the object is segmented.
+
+An Observation holds the grey image for features, the object mask, the object's depth
+smoothed within the mask (sensor noise averaged over a small window, never across the
+object's edge), the matching range image for the depth term, and the object's outline
+lifted to 3D for the boundary term.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+from ipc.messages import RGBDFrame
+from perception.camera import backproject, pixel_index, rays
+from perception.segmentation import outline, valid_depth
+
+
+@dataclass
+class Observation:
+    """grey : (H, W) uint8; mask : (H, W) bool object mask;
+    depth_m : (H, W) float32 smoothed object depth along z, 0 off the object or unmeasured;
+    range_m : (H, W) float32 the same as distance from the camera centre;
+    outline_cam : (P, 3) float64 metres, the object's outline points; K : (3, 3)."""
+
+    grey: np.ndarray
+    mask: np.ndarray
+    depth_m: np.ndarray
+    range_m: np.ndarray
+    outline_cam: np.ndarray
+    K: np.ndarray
+
+    def depth_at(self, xy: np.ndarray) -> np.ndarray:
+        """(P,) float64 smoothed object depth at pixels (P, 2); 0 where none."""
+        h, w = self.depth_m.shape
+        cols, rows, inside = pixel_index(np.asarray(xy, np.float64), w, h)
+        return np.where(inside, self.depth_m[rows, cols], 0.0).astype(np.float64)
+
+    def points_at(self, xy: np.ndarray):
+        """3D points (P, 3) at pixels (P, 2) and the (P,) bool mask of those with depth."""
+        d = self.depth_at(xy)
+        return backproject(np.asarray(xy, np.float64), d, self.K), d > 0
+
+
+def smooth_depth_in_mask(depth_m: np.ndarray, mask: np.ndarray, window_px: int) -> np.ndarray:
+    """Mean of valid object depths in a ``window_px`` square around each object pixel.
+
+    Only pixels of ``mask`` with valid depth take part, so the object's edge is not blurred
+    into the background. returns (H, W) float32, 0 off the mask or where nothing was measured.
+    """
+    out = np.zeros(depth_m.shape, np.float32)
+    ys, xs = np.nonzero(mask)
+    if len(xs) == 0:
+        return out
+    r = window_px // 2 + 1
+    y0, y1 = max(0, ys.min() - r), min(mask.shape[0], ys.max() + r + 1)
+    x0, x1 = max(0, xs.min() - r), min(mask.shape[1], xs.max() + r + 1)
+    d = depth_m[y0:y1, x0:x1]
+    m = mask[y0:y1, x0:x1] & valid_depth(d)
+    if window_px <= 1:
+        out[y0:y1, x0:x1] = np.where(m, d, 0.0)
+        return out
+    w = m.astype(np.float32)
+    num = cv2.boxFilter(np.where(m, d, 0.0).astype(np.float32), -1, (window_px, window_px), normalize=False,
+                        borderType=cv2.BORDER_CONSTANT)
+    den = cv2.boxFilter(w, -1, (window_px, window_px), normalize=False, borderType=cv2.BORDER_CONSTANT)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sm = np.where((den > 0) & mask[y0:y1, x0:x1], num / den, 0.0)
+    out[y0:y1, x0:x1] = sm
+    return out
+
+
+@lru_cache(maxsize=4)
+def _ray_norms(fx: float, fy: float, cx: float, cy: float, w: int, h: int) -> np.ndarray:
+    """(H, W) float32 length of the z = 1 ray through each pixel (range = depth * this)."""
+    uu, vv = np.meshgrid(np.arange(w), np.arange(h))
+    return np.sqrt(((uu - cx) / fx) ** 2 + ((vv - cy) / fy) ** 2 + 1.0).astype(np.float32)
+
+
+def observe(frame: RGBDFrame, mask: np.ndarray, window_px: int = 5, occlusion_margin_m: float = 0.03) -> Observation:
+    """Build the Observation of ``frame`` for the object ``mask`` (H, W) bool."""
+    K = frame.camera.K
+    grey = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
+    depth = smooth_depth_in_mask(frame.depth_m, mask, window_px)
+    h, w = depth.shape
+    rng = depth * _ray_norms(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), w, h)
+    ys, xs = np.nonzero(mask)
+    if len(xs):  # the outline lies within the mask's bounding box (plus one pixel for neighbours)
+        y0, y1 = max(0, ys.min() - 1), min(h, ys.max() + 2)
+        x0, x1 = max(0, xs.min() - 1), min(w, xs.max() + 2)
+        oy, ox = np.nonzero(outline(mask[y0:y1, x0:x1], frame.depth_m[y0:y1, x0:x1], occlusion_margin_m))
+        oy, ox = oy + y0, ox + x0
+    else:
+        oy = ox = np.zeros(0, np.int64)
+    od = depth[oy, ox]
+    ok = od > 0
+    uv = np.column_stack([ox[ok], oy[ok]]).astype(np.float64)
+    outline_cam = rays(uv, K) * od[ok, None]
+    return Observation(grey=grey, mask=mask.astype(bool), depth_m=depth, range_m=rng, outline_cam=outline_cam, K=K)

@@ -1,0 +1,66 @@
+"""Drawing a projected mesh into image-sized arrays (masks, face ids).
+
+uv : (N, 2) float pixel coordinates of the vertices; faces : (M, 3) int; shape : (H, W).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from perception.mesh import barycentric_2d
+
+
+def _pixel_triangles(uv: np.ndarray, faces: np.ndarray, shape) -> tuple[np.ndarray, np.ndarray]:
+    """Integer triangles (K, 3, 2) of the faces whose corners are all finite, and their ids (K,)."""
+    h, w = shape
+    ok = np.all(np.isfinite(uv[faces]).reshape(len(faces), -1), axis=1)
+    lim = 10 * max(h, w)  # keep far-off corners from overflowing OpenCV's fixed-point maths
+    tri = np.clip(np.rint(uv[faces[ok]]), -lim, lim).astype(np.int32)
+    return tri, np.flatnonzero(ok)
+
+
+def faces_mask(uv: np.ndarray, faces: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: pixels covered by the projected triangles."""
+    tri, _ = _pixel_triangles(uv, faces, shape)
+    mask = np.zeros(shape, np.uint8)
+    # fillPoly fills by the even-odd rule, so overlapping triangles would cancel; the two
+    # triangle orientations of the hexagonal grid never overlap among themselves unless folded.
+    for half in (tri[0::2], tri[1::2]):
+        if len(half):
+            layer = np.zeros_like(mask)
+            cv2.fillPoly(layer, list(half), 1)
+            mask |= layer
+    return mask.astype(bool)
+
+
+def face_index_image(uv: np.ndarray, faces: np.ndarray, depth: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) int32: id of the face seen at each pixel, -1 for none.
+
+    depth : (N,) float per-vertex depth; where faces overlap, the nearer one is kept
+    (painter's order by mean depth, exact for a mesh that does not interpenetrate).
+    """
+    tri, ids = _pixel_triangles(uv, faces, shape)
+    img = np.full(shape, -1, np.int32)
+    order = np.argsort(-depth[faces[ids]].mean(axis=1), kind="stable")
+    for t, i in zip(tri[order], ids[order]):
+        cv2.fillConvexPoly(img, t, int(i))
+    return img
+
+
+def locate_pixels(xy: np.ndarray, uv: np.ndarray, faces: np.ndarray, depth: np.ndarray, shape):
+    """Face seen at each pixel (P, 2) and the point's barycentric coordinates in it.
+
+    returns (face_ids (P,) int64, -1 where no face is seen; bary (P, 3) float64)
+    """
+    xy = np.asarray(xy, np.float64)
+    h, w = shape
+    img = face_index_image(uv, faces, depth, shape)
+    cols = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, w - 1)
+    rows = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, h - 1)
+    fid = img[rows, cols].astype(np.int64)
+    bary = np.zeros((len(xy), 3))
+    hit = fid >= 0
+    if hit.any():
+        bary[hit] = barycentric_2d(xy[hit], uv[faces[fid[hit]]])
+    return fid, bary

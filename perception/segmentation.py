@@ -1,0 +1,214 @@
+"""Depth-based foreground segmentation of the tracked object.
+
+Works on depth images (H, W) float32 metres with 0/NaN for missing. Two situations:
+
+- First frame, no mask given (``find_object``): remove the large planes that touch the
+  image border (floor, table, wall), split what is left into regions of continuous depth,
+  and take the largest region that is not itself background.
+- Tracking (``segment_tracked``): the object is the union of the depth-continuous regions
+  that overlap the mesh predicted from the previous frame, searched only within a margin
+  around that prediction and a depth band around the mesh. A hand or gripper holding the
+  cloth is cut off at the margin; a wall or floor beyond the band never joins.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SegmentationConfig:
+    """Tuning of the depth segmentation (metres and pixels).
+
+    edge_jump_m, edge_jump_rel : neighbouring pixels belong to one surface when their depths
+        differ by less than ``edge_jump_m + edge_jump_rel * depth``
+    search_margin_px : how far beyond the predicted mesh outline the object may have moved
+    depth_band_m : how far in front of / behind the predicted mesh the object may be
+    min_region_px : regions smaller than this are noise
+    plane_inlier_m : RANSAC plane tolerance when removing support planes
+    plane_min_fraction : a plane must hold this fraction of valid pixels to be background
+    """
+
+    edge_jump_m: float = 0.02
+    edge_jump_rel: float = 0.02
+    search_margin_px: int = 30
+    depth_band_m: float = 0.15
+    min_region_px: int = 150
+    plane_inlier_m: float = 0.012
+    plane_min_fraction: float = 0.12
+    max_planes: int = 3
+
+
+def valid_depth(depth_m: np.ndarray) -> np.ndarray:
+    """(H, W) bool: finite and positive depth."""
+    return np.isfinite(depth_m) & (depth_m > 0)
+
+
+def depth_edges(depth_m: np.ndarray, cfg: SegmentationConfig) -> np.ndarray:
+    """(H, W) bool: pixels next to a depth discontinuity (or to missing depth)."""
+    d = np.where(valid_depth(depth_m), depth_m, 0.0).astype(np.float32)
+    tol = cfg.edge_jump_m + cfg.edge_jump_rel * d
+    edge = np.zeros(d.shape, bool)
+    dx = np.abs(np.diff(d, axis=1)) > np.minimum(tol[:, 1:], tol[:, :-1]) + (d[:, 1:] == 0) * 1e9
+    dy = np.abs(np.diff(d, axis=0)) > np.minimum(tol[1:, :], tol[:-1, :]) + (d[1:, :] == 0) * 1e9
+    edge[:, 1:] |= dx
+    edge[:, :-1] |= dx
+    edge[1:, :] |= dy
+    edge[:-1, :] |= dy
+    return edge
+
+
+def _regions(candidate: np.ndarray, depth_m: np.ndarray, cfg: SegmentationConfig):
+    """Connected regions of continuous depth inside ``candidate`` (H, W) bool."""
+    fg = candidate & ~depth_edges(depth_m, cfg)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(fg.astype(np.uint8), connectivity=4)
+    return n, labels, stats
+
+
+def _grow(region: np.ndarray, candidate: np.ndarray) -> np.ndarray:
+    """Give back the one-pixel rims that the edge test shaved off a region."""
+    grown = cv2.dilate(region.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    return region | (grown & candidate)
+
+
+def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tuple[float, float],
+                    cfg: SegmentationConfig = SegmentationConfig()) -> np.ndarray:
+    """Object mask in a frame, given where the object is predicted to be.
+
+    depth_m : (H, W) float32 metres, 0/NaN missing
+    predicted_mask : (H, W) bool, the predicted mesh drawn into the image
+    z_range : (z_min, z_max) metres, depth extent of the predicted mesh
+    returns (H, W) bool; empty when nothing of the object is seen
+    """
+    out = np.zeros(predicted_mask.shape, bool)
+    ys, xs = np.nonzero(predicted_mask)
+    if len(xs) == 0:
+        return out
+    # Work in the prediction's bounding box grown by the search margin: the rest of the
+    # image cannot hold the object.
+    m = cfg.search_margin_px + 1
+    y0, y1 = max(0, ys.min() - m), min(out.shape[0], ys.max() + m + 1)
+    x0, x1 = max(0, xs.min() - m), min(out.shape[1], xs.max() + m + 1)
+    pred = predicted_mask[y0:y1, x0:x1]
+    depth = depth_m[y0:y1, x0:x1]
+    valid = valid_depth(depth)
+    dist = cv2.distanceTransform((~pred).astype(np.uint8), cv2.DIST_L2, 3)
+    search = dist <= cfg.search_margin_px
+    d = np.where(valid, depth, 0.0)
+    candidate = valid & search & (d > z_range[0] - cfg.depth_band_m) & (d < z_range[1] + cfg.depth_band_m)
+    n, labels, stats = _regions(candidate, depth, cfg)
+    if n <= 1:
+        return out
+    overlap = np.bincount(labels[pred], minlength=n)
+    area = stats[:, cv2.CC_STAT_AREA]
+    # A region belongs to the object when a real part of it lies where the mesh was predicted.
+    keep = (overlap >= np.maximum(cfg.min_region_px // 3, 0.2 * area)) & (area >= cfg.min_region_px)
+    keep[0] = False
+    out[y0:y1, x0:x1] = _grow(keep[labels], candidate)
+    return out
+
+
+def _fit_plane_ransac(points: np.ndarray, tol: float, rng: np.random.Generator, iters: int = 200):
+    """Best plane (n, d) with n.p + d = 0 by RANSAC on (P, 3) points; returns (n, d, inlier count)."""
+    best = (None, 0.0, 0)
+    if len(points) < 3:
+        return best
+    idx = rng.integers(0, len(points), size=(iters, 3))
+    a, b, c = points[idx[:, 0]], points[idx[:, 1]], points[idx[:, 2]]
+    n = np.cross(b - a, c - a)
+    norm = np.linalg.norm(n, axis=1)
+    ok = norm > 1e-9
+    n = n[ok] / norm[ok, None]
+    d = -np.einsum("ij,ij->i", n, a[ok])
+    sample = points[rng.integers(0, len(points), size=min(len(points), 2000))]
+    counts = (np.abs(sample @ n.T + d) < tol).sum(axis=0)
+    if len(counts) == 0:
+        return best
+    i = int(np.argmax(counts))
+    inl = np.abs(points @ n[i] + d[i]) < tol
+    if inl.sum() >= 3:  # refine on all inliers by least squares
+        p = points[inl]
+        c0 = p.mean(axis=0)
+        nn = np.linalg.svd(p - c0, full_matrices=False)[2][2]
+        dd = -nn @ c0
+        inl = np.abs(points @ nn + dd) < tol
+        return nn, dd, int(inl.sum())
+    return n[i], d[i], int(inl.sum())
+
+
+def _touches_border(mask: np.ndarray) -> int:
+    return int(mask[0].any()) + int(mask[-1].any()) + int(mask[:, 0].any()) + int(mask[:, -1].any())
+
+
+def find_object(depth_m: np.ndarray, K: np.ndarray, cfg: SegmentationConfig = SegmentationConfig(),
+                rng: np.random.Generator | None = None) -> np.ndarray:
+    """Find the object in a frame with no prior: (H, W) bool mask, empty if none.
+
+    Large planes that touch at least two image borders (floor, table, wall) are removed,
+    then the largest depth-continuous region that touches at most two borders is taken.
+    """
+    rng = rng if rng is not None else np.random.default_rng(0)
+    valid = valid_depth(depth_m)
+    h, w = depth_m.shape
+    vv, uu = np.nonzero(valid)
+    if len(vv) < cfg.min_region_px:
+        return np.zeros((h, w), bool)
+    z = depth_m[vv, uu].astype(np.float64)
+    pts = np.column_stack([(uu - K[0, 2]) / K[0, 0] * z, (vv - K[1, 2]) / K[1, 1] * z, z])
+    background = np.zeros((h, w), bool)
+    remaining = np.ones(len(pts), bool)
+    for _ in range(cfg.max_planes):
+        idx = np.flatnonzero(remaining)
+        n, d, count = _fit_plane_ransac(pts[idx], cfg.plane_inlier_m, rng)
+        if n is None or count < cfg.plane_min_fraction * len(pts):
+            break
+        inl = idx[np.abs(pts[idx] @ n + d) < cfg.plane_inlier_m]
+        plane = np.zeros((h, w), bool)
+        plane[vv[inl], uu[inl]] = True
+        # A support plane is large and runs off the image; a flat poster filling the
+        # middle of the view is not background.
+        if _touches_border(plane) < 2:
+            break
+        background |= plane
+        remaining[inl] = False
+    candidate = valid & ~background
+    candidate = cv2.morphologyEx(candidate.astype(np.uint8), cv2.MORPH_OPEN, np.ones((3, 3), np.uint8)).astype(bool)
+    n, labels, stats = _regions(candidate, depth_m, cfg)
+    best, best_area = 0, 0
+    for i in range(1, n):
+        area = stats[i, cv2.CC_STAT_AREA]
+        if area < cfg.min_region_px or area <= best_area:
+            continue
+        if _touches_border(labels == i) > 2:
+            continue
+        best, best_area = i, area
+    if best == 0:
+        return np.zeros((h, w), bool)
+    return _grow(labels == best, candidate)
+
+
+def outline(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: float = 0.03) -> np.ndarray:
+    """(H, W) bool: the object's own outline pixels.
+
+    Pixels of ``mask`` with a 4-neighbour outside it, except where the object is cut by the
+    image border or hidden behind something nearer (an occluding hand or gripper): those
+    contour pixels say nothing about where the object ends.
+    """
+    m = mask.astype(bool)
+    h, w = m.shape
+    d = np.where(valid_depth(depth_m), depth_m, np.inf)
+    pad_m = np.pad(m, 1, constant_values=True)  # the border is not an outline
+    pad_d = np.pad(d, 1, constant_values=np.inf)
+    out = np.zeros_like(m)
+    for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
+        nb_m = pad_m[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
+        nb_d = pad_d[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
+        occluded = nb_d < d - occlusion_margin_m
+        out |= m & ~nb_m & ~occluded
+    return out

@@ -1,0 +1,366 @@
+"""MeshTracker: the paper's 3D deformable surface tracker on RGB-D frames.
+
+Usage::
+
+    tracker = MeshTracker(TrackerConfig())
+    estimate = tracker.initialise(first_frame, mask=None)   # mask: (H, W) bool, optional
+    for frame in frames:
+        estimate = tracker.track(frame)                      # ipc.MeshEstimate
+
+Each frame: predict the mesh from the previous estimates, segment the object by depth
+around the prediction, match features, then minimise
+``Psi_S + lambda_C Psi_C + lambda_D Psi_D + lambda_B Psi_B`` with the semi-implicit
+solver. Correspondences are re-weighted between solver stages with a shrinking inlier
+radius (as Pilet et al.), so a few wrong matches cannot tear the mesh.
+
+Pure numerics: frames in, estimates out; no files, sockets or simulators.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import asdict, dataclass, field, replace
+
+import cv2
+import numpy as np
+
+from ipc.messages import MeshEstimate, RGBDFrame
+from perception.camera import Undistorter, pixel_index, project
+from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, SmoothnessTerm
+from perception.features import make_correspondences, resolve_kind
+from perception.initial_mesh import InitialisationError, mesh_from_mask, place_mesh
+from perception.mesh import CanonicalMesh, barycentric_matrix
+from perception.observation import Observation, observe
+from perception.raster import faces_mask
+from perception.segmentation import SegmentationConfig, find_object, segment_tracked
+from perception.solver import SemiImplicitSolver
+
+log = logging.getLogger(__name__)
+
+
+class TrackingError(ValueError):
+    """A frame or mask the tracker cannot use; the message names what was wrong."""
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """Every knob of the tracker. Weights default to the paper's.
+
+    spacing_m : canonical mesh edge length, metres (0.03 gives ~370 vertices on a 60x45 cm cloth)
+    lambda_c, lambda_d, lambda_b : weights of the correspondence, depth and boundary terms
+    use_correspondence, use_depth, use_boundary : switch terms off for ablations
+    alpha : adaptation rate of the semi-implicit scheme (larger = smaller, safer steps)
+    max_iterations : solver iterations per frame, shared by the outlier-rejection stages
+    tolerance_m : stop when no vertex moves more than this in an iteration
+    features : "auto" (SURF if available, else SIFT), "surf", "sift", "orb" or "klt"
+    max_features : features detected per frame
+    match_gate_px : a match must lie within this distance of its predicted location
+    match_keep_fraction : the paper keeps the best half of the matches
+    match_previous_frame : also match the previous frame's features (bound through the estimate)
+    outlier_radii_m : inlier radius of each solver stage; a match farther from its mesh point is ignored
+    depth_window_px : depth is averaged over this window on the object (noise)
+    depth_outlier_m : depth residuals larger than this are ignored (occlusion, edges)
+    boundary_gate_m : boundary vertices farther than this from the outline are left alone
+    velocity_prediction : fraction of the last inter-frame motion added to predict the next frame
+    init_iterations : smoothing iterations when the mesh is laid on the first frame
+    confidence_tol_m : a vertex is supported when its depth agrees within this
+    lost_confidence : below this confidence the estimate is flagged lost
+    """
+
+    spacing_m: float = 0.03
+    lambda_c: float = 1.3
+    lambda_d: float = 0.6
+    lambda_b: float = 0.8
+    use_correspondence: bool = True
+    use_depth: bool = True
+    use_boundary: bool = True
+    alpha: float = 0.3
+    max_iterations: int = 24
+    tolerance_m: float = 1e-4
+    features: str = "auto"
+    max_features: int = 500
+    match_gate_px: float = 40.0
+    match_keep_fraction: float = 0.5
+    match_previous_frame: bool = True
+    outlier_radii_m: tuple = (0.05, 0.02)
+    depth_window_px: int = 5
+    depth_outlier_m: float = 0.08
+    boundary_gate_m: float = 0.06
+    velocity_prediction: float = 0.5
+    init_iterations: int = 20
+    confidence_tol_m: float = 0.03
+    lost_confidence: float = 0.4
+    segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
+
+    def __post_init__(self):
+        positive = ("spacing_m", "alpha", "tolerance_m", "match_gate_px", "depth_outlier_m", "boundary_gate_m",
+                    "confidence_tol_m")
+        for name in positive:
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise ValueError(f"TrackerConfig.{name}: expected a positive number, got {v!r}")
+        for name in ("lambda_c", "lambda_d", "lambda_b", "velocity_prediction"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
+                raise ValueError(f"TrackerConfig.{name}: expected a non-negative number, got {v!r}")
+        if not 0 < self.match_keep_fraction <= 1:
+            raise ValueError(f"TrackerConfig.match_keep_fraction: expected (0, 1], got {self.match_keep_fraction}")
+        if int(self.max_iterations) < 1 or int(self.max_features) < 1 or int(self.depth_window_px) < 1:
+            raise ValueError("TrackerConfig: max_iterations, max_features and depth_window_px must be >= 1")
+        if not self.outlier_radii_m or any(not r > 0 for r in self.outlier_radii_m):
+            raise ValueError(f"TrackerConfig.outlier_radii_m: expected positive radii, got {self.outlier_radii_m}")
+        resolve_kind(self.features)
+
+    @classmethod
+    def realtime(cls, **overrides) -> "TrackerConfig":
+        """A preset for 30 Hz on two CPU cores: KLT points instead of descriptors, fewer iterations."""
+        base = dict(features="klt", max_features=300, max_iterations=12, outlier_radii_m=(0.04, 0.02),
+                    init_iterations=10)
+        base.update(overrides)
+        return cls(**base)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+class MeshTracker:
+    """Tracks one deformable object; see the module docstring."""
+
+    def __init__(self, config: TrackerConfig | None = None, rng: np.random.Generator | None = None):
+        self.config = config if config is not None else TrackerConfig()
+        self._rng = rng if rng is not None else np.random.default_rng(0)
+        self.reset()
+
+    # -- state ---------------------------------------------------------------------------
+
+    def reset(self) -> None:
+        """Forget the object; ``initialise`` must be called again."""
+        self.mesh: CanonicalMesh | None = None
+        self._V = None
+        self._V_prev = None
+        self._camera = None
+        self._undistort = None
+        self._solver = None
+        self._corr = None
+        self._g0 = None
+        self._faces_out = None
+        self.last_observation: Observation | None = None
+
+    @property
+    def initialised(self) -> bool:
+        return self.mesh is not None
+
+    @property
+    def vertices(self) -> np.ndarray:
+        """(N, 3) float64 current estimate, metres, camera frame."""
+        if self._V is None:
+            raise TrackingError("the tracker is not initialised")
+        return self._V.copy()
+
+    def set_config(self, config: TrackerConfig) -> None:
+        """Change parameters; those that shape the mesh apply from the next ``initialise``."""
+        old = self.config
+        self.config = config
+        if self.initialised:
+            if config.alpha != old.alpha:
+                self._solver = SemiImplicitSolver(self.mesh.stiffness(), config.alpha)
+            if (config.features, config.max_features) != (old.features, old.max_features):
+                log.warning("feature settings change at the next initialise")
+
+    # -- checks --------------------------------------------------------------------------
+
+    def _check_frame(self, frame: RGBDFrame) -> RGBDFrame:
+        if not isinstance(frame, RGBDFrame):
+            raise TrackingError(f"expected an RGBDFrame, got {type(frame).__name__}")
+        if self._camera is not None:
+            c = frame.camera
+            if (c.width, c.height) != (self._camera.width, self._camera.height) or not np.allclose(c.K, self._camera.K):
+                raise TrackingError(
+                    f"frame camera changed: initialised on {self._camera.width}x{self._camera.height}, "
+                    f"got {c.width}x{c.height} (re-initialise for a new camera)")
+        return frame
+
+    # -- initialise ----------------------------------------------------------------------
+
+    def initialise(self, frame: RGBDFrame, mask: np.ndarray | None = None,
+                   mesh: CanonicalMesh | None = None) -> MeshEstimate:
+        """Lay the canonical mesh over the object in ``frame`` and bind its features.
+
+        mask : (H, W) bool or uint8 (non-zero on the object); found by depth segmentation if None
+        mesh : an off-line canonical mesh (e.g. ``rectangle_mesh``); built from the mask if None
+        raises TrackingError with a one-line reason when the frame cannot carry a mesh
+        """
+        t0 = time.perf_counter()
+        self.reset()
+        frame = self._check_frame(frame)
+        self._undistort = Undistorter(frame.camera)
+        frame = self._undistort(frame)
+        cfg = self.config
+        h, w = frame.depth_m.shape
+        if mask is None:
+            mask = find_object(frame.depth_m, frame.camera.K, cfg.segmentation, self._rng)
+            if not mask.any():
+                raise TrackingError("no object found by depth segmentation in the first frame; pass a mask")
+        else:
+            mask = np.asarray(mask)
+            if mask.shape != (h, w):
+                raise TrackingError(f"mask: expected shape ({h}, {w}) like the frame, got {mask.shape}")
+            mask = mask.astype(bool)
+            if not mask.any():
+                raise TrackingError("mask is empty: it must be non-zero on the object")
+        obs = observe(frame, mask, cfg.depth_window_px)
+        try:
+            if mesh is None:
+                mesh, V0 = mesh_from_mask(obs, cfg.spacing_m)
+            else:
+                V0 = place_mesh(mesh, obs)
+        except InitialisationError as e:
+            raise TrackingError(str(e)) from None
+        if mesh.n_vertices < 3:
+            raise TrackingError("the object is too small for the mesh spacing")
+        self.mesh = mesh
+        self._camera = frame.camera
+        self._solver = SemiImplicitSolver(mesh.stiffness(), cfg.alpha)
+        self._faces_out = self._orient_faces(mesh.faces, V0)
+
+        boundary = self._boundary_term(obs, np.zeros(len(mesh.boundary)))
+        s, *_ = boundary.signed_distance(V0)
+        self._g0 = np.clip(s, 0.0, mesh.spacing_m)
+        terms = self._data_terms(obs, correspondences=None)
+        res = self._solver.minimise(V0, terms, cfg.init_iterations, cfg.tolerance_m)
+        V = res.vertices
+        self._V, self._V_prev = V, V.copy()
+
+        if cfg.use_correspondence:
+            self._corr = make_correspondences(cfg.features, cfg.max_features, cfg.match_gate_px,
+                                              cfg.match_keep_fraction, cfg.match_previous_frame)
+            self._corr.initialise(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
+        self.last_observation = obs
+        conf = self._confidence(V, frame)
+        log.info("initialised mesh: %d vertices, %d faces, %d boundary, %d features", mesh.n_vertices,
+                 len(mesh.faces), len(mesh.boundary), self._corr.n_model if self._corr else 0)
+        return self._estimate(frame, V, res.energies, res.iterations, conf, t0)
+
+    @staticmethod
+    def _orient_faces(faces: np.ndarray, V: np.ndarray) -> np.ndarray:
+        """Faces ordered so their normals face the camera at frame 0 (counter-clockwise as seen)."""
+        a, b, c = V[faces[:, 0]], V[faces[:, 1]], V[faces[:, 2]]
+        normal = np.cross(b - a, c - a).sum(axis=0)
+        if normal @ (-V.mean(axis=0)) < 0:
+            return faces[:, [0, 2, 1]].copy()
+        return faces.copy()
+
+    # -- terms ---------------------------------------------------------------------------
+
+    @staticmethod
+    def _feature_mask(mask: np.ndarray) -> np.ndarray:
+        # Features on the object's very edge describe the background as much as the object.
+        return cv2.erode(mask.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
+
+    def _boundary_term(self, obs: Observation, g0: np.ndarray) -> BoundaryTerm:
+        return BoundaryTerm(self.mesh.boundary, g0, obs.outline_cam, obs.mask, obs.K, self.config.boundary_gate_m)
+
+    def _data_terms(self, obs: Observation, correspondences: CorrespondenceTerm | None):
+        cfg = self.config
+        terms = []
+        if correspondences is not None and cfg.use_correspondence and len(correspondences.targets):
+            terms.append((cfg.lambda_c, correspondences))
+        if cfg.use_depth:
+            terms.append((cfg.lambda_d, DepthTerm(obs.range_m, obs.K, cfg.depth_outlier_m)))
+        if cfg.use_boundary and len(obs.outline_cam):
+            terms.append((cfg.lambda_b, self._boundary_term(obs, self._g0)))
+        return terms
+
+    # -- track ---------------------------------------------------------------------------
+
+    def predict(self) -> np.ndarray:
+        """(N, 3) the mesh expected in the next frame (constant velocity, damped)."""
+        return self._V + self.config.velocity_prediction * (self._V - self._V_prev)
+
+    def track(self, frame: RGBDFrame) -> MeshEstimate:
+        """Estimate the mesh in a new frame. Raises TrackingError before ``initialise`` or on a bad frame."""
+        t0 = time.perf_counter()
+        if not self.initialised:
+            raise TrackingError("track() called before initialise()")
+        frame = self._undistort(self._check_frame(frame))
+        cfg = self.config
+        K = frame.camera.K
+        faces = self.mesh.faces
+        V_pred = self.predict()
+        h, w = frame.depth_m.shape
+        uv = project(V_pred, K)
+        pred_mask = faces_mask(uv, faces, (h, w))
+        z = V_pred[:, 2]
+        mask = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation)
+        if not mask.any():
+            log.debug("frame %d: object not seen", frame.seq)
+            self._V_prev, self._V = self._V, self._V.copy()
+            self.last_observation = None
+            return self._estimate(frame, self._V, {}, 0, 0.0, t0, lost=True)
+        obs = observe(frame, mask, cfg.depth_window_px)
+        corr = None
+        if cfg.use_correspondence and self._corr is not None:
+            fid, bary, xy = self._corr.match(obs.grey, self._feature_mask(mask), V_pred, faces, K)
+            pts, has = obs.points_at(xy)
+            if has.any():
+                B = barycentric_matrix(fid[has], bary[has], faces, self.mesh.n_vertices)
+                corr = CorrespondenceTerm(B, pts[has], np.ones(int(has.sum())))
+        terms = self._data_terms(obs, corr)
+        V = V_pred
+        stages = cfg.outlier_radii_m if corr is not None else (None,)
+        budget = max(1, cfg.max_iterations // len(stages))
+        iterations, energies = 0, {}
+        for radius in stages:
+            if radius is not None:
+                corr.weights = (corr.residuals(V) < radius).astype(np.float64)
+            res = self._solver.minimise(V, terms, budget, cfg.tolerance_m)
+            V, energies = res.vertices, res.energies
+            iterations += res.iterations
+        if self._corr is not None:
+            self._corr.update(obs.grey, self._feature_mask(mask), V, faces, K)
+        self._V_prev, self._V = self._V, V
+        self.last_observation = obs
+        if corr is not None:
+            energies["inliers"] = float(corr.weights.sum())
+        return self._estimate(frame, V, energies, iterations, self._confidence(V, frame), t0)
+
+    # -- outputs -------------------------------------------------------------------------
+
+    def _confidence(self, V: np.ndarray, frame: RGBDFrame) -> float:
+        """Fraction of vertices with depth evidence whose depth agrees.
+
+        A vertex seen in front of the measured surface contradicts the data; one behind it
+        may be occluded and says nothing; one off the image or without depth says nothing.
+        Too little evidence (under a fifth of the vertices) lowers confidence in proportion.
+        """
+        h, w = frame.depth_m.shape
+        cols, rows, inside = pixel_index(project(V, frame.camera.K), w, h)
+        d = np.where(inside, frame.depth_m[rows, cols], np.nan)
+        z = V[:, 2]
+        known = np.isfinite(d) & (d > 0)
+        agree = known & (np.abs(d - z) < self.config.confidence_tol_m)
+        contradict = known & (d > z + self.config.confidence_tol_m)
+        evidence = agree.sum() + contradict.sum()
+        if evidence == 0:
+            return 0.0
+        conf = agree.sum() / evidence
+        return float(conf * min(1.0, evidence / (0.2 * len(V))))
+
+    def _estimate(self, frame, V, energies, iterations, confidence, t0, lost=None) -> MeshEstimate:
+        if lost is None:
+            lost = confidence < self.config.lost_confidence
+        return MeshEstimate(
+            vertices=V, faces=self._faces_out, boundary=self.mesh.boundary, canonical=self.mesh.canonical,
+            timestamp_s=frame.timestamp_s, seq=frame.seq, energies=energies, iterations=iterations,
+            confidence=float(np.clip(confidence, 0.0, 1.0)), lost=lost,
+            timing_ms=(time.perf_counter() - t0) * 1000.0, frame_id=frame.camera.frame_id)
+
+
+def config_with(config: TrackerConfig, **changes) -> TrackerConfig:
+    """A copy of ``config`` with ``changes``; unknown names raise ValueError naming them."""
+    known = set(TrackerConfig.__dataclass_fields__)
+    unknown = sorted(set(changes) - known)
+    if unknown:
+        raise ValueError(f"unknown tracker parameter(s): {', '.join(unknown)}")
+    return replace(config, **changes)
