@@ -109,8 +109,6 @@ class Outline:
         -------
         (S,) int64 rows, in outline order, without repeats
         """
-        if not spacing_m > 0:
-            raise ValueError(f"Expected spacing_m > 0, got {spacing_m}")
         picked = []
         for loop, perimeter in enumerate(self.perimeters_m):
             rows = np.flatnonzero(self.loop_ids == loop)
@@ -124,8 +122,6 @@ class Outline:
             gap = np.abs(targets[:, None] - s[None, :])
             gap = np.minimum(gap, perimeter - gap)
             picked.append(rows[np.argmin(gap, axis=1)])
-        if not picked:
-            return np.zeros(0, np.int64)
         rows = np.concatenate(picked)
         _, first = np.unique(rows, return_index=True)
         return rows[np.sort(first)]
@@ -255,6 +251,12 @@ def _suppress(angle: np.ndarray, arclength: np.ndarray, perimeter: float, radius
     return np.sort(np.asarray(keep, np.int64))
 
 
+def _shoelace(loop_pts: np.ndarray) -> float:
+    """Signed area of a closed polygon (n, 2), positive when counter-clockwise."""
+    x, y = loop_pts[:, 0], loop_pts[:, 1]
+    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
+
+
 def build_outline(
     canonical,
     faces,
@@ -320,8 +322,7 @@ def build_outline(
         out = ends[:, 1] - loop_pts
         turn = np.arctan2(into[:, 0] * out[:, 1] - into[:, 1] * out[:, 0], np.sum(into * out, axis=1))
         angle = np.pi - turn
-        # Corners must be boundary vertices of the caller's mesh; a sharp convex
-        # turn always has fewer than six neighbours, so this only guards the contract.
+        # Corners are boundary vertices by contract: only the caller's ids qualify.
         sharp = np.where(in_boundary[loop], angle, np.inf)
         corners.append(row0 + _suppress(sharp, arc, perimeter, loop_window, max_angle_rad))
         ids.append(loop)
@@ -333,8 +334,12 @@ def build_outline(
         perimeters.append(perimeter)
         row0 += len(loop)
 
+    vertex_ids = np.concatenate(ids)
+    corner_rows = np.concatenate(corners)
+    # A vertex where two loops touch can be a corner of both; one grasp is enough.
+    _, first = np.unique(vertex_ids[corner_rows], return_index=True)
     outline = Outline(
-        vertex_ids=np.concatenate(ids),
+        vertex_ids=vertex_ids,
         loop_ids=np.concatenate(loop_ids),
         arclength_m=np.concatenate(arcs),
         perimeters_m=np.asarray(perimeters),
@@ -343,19 +348,13 @@ def build_outline(
         interior_angle_rad=np.concatenate(angles),
         spacing_m=spacing,
         window_m=window,
-        corner_rows=np.concatenate(corners),
+        corner_rows=corner_rows[np.sort(first)],
     )
     log.debug(
         "outline: %d loop(s), %d rows, spacing %.4f m, %d corner(s)",
         len(loops), len(outline.vertex_ids), spacing, len(outline.corner_rows),
     )
     return outline
-
-
-def _shoelace(loop_pts: np.ndarray) -> float:
-    """Signed area of a closed polygon (n, 2), positive when counter-clockwise."""
-    x, y = loop_pts[:, 0], loop_pts[:, 1]
-    return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
 def find_corners(

@@ -67,6 +67,11 @@ class CorrespondenceTerm:
         wr = r * self.weights[:, None]
         return 0.5 * float(np.sum(wr * r)), np.asarray(self._BT @ wr)
 
+    def gauss_newton(self, V: np.ndarray):
+        """Hessian-vector product of the (already quadratic) term: P (N, 3) -> (N, 3)."""
+        w = self.weights[:, None]
+        return lambda P: np.asarray(self._BT @ (w * (self.B @ P)))
+
 
 @dataclass
 class DepthTerm:
@@ -97,6 +102,12 @@ class DepthTerm:
         grad = np.zeros_like(V)
         grad[active] = (r[active] / norm[active])[:, None] * V[active]
         return 0.5 * float(np.sum(r * r)), grad
+
+    def gauss_newton(self, V: np.ndarray):
+        """Gauss-Newton Hessian-vector product at V: rank one along each active vertex's ray."""
+        _, active, norm = self.lookup(V)
+        n = np.where(active[:, None], V / np.maximum(norm, 1e-12)[:, None], 0.0)
+        return lambda P: n * np.einsum("ij,ij->i", n, P)[:, None]
 
 
 @dataclass
@@ -145,3 +156,11 @@ class BoundaryTerm:
             g = (r * sign / np.where(active, dist, 1.0))[:, None] * offset
         grad[self.vertex_ids[active]] = g[active]  # boundary ids are unique
         return 0.5 * float(np.sum(r * r)), grad
+
+    def gauss_newton(self, V: np.ndarray):
+        """Gauss-Newton Hessian-vector product at V: rank one along each vertex's offset from the outline."""
+        s, offset, _, active = self.signed_distance(V)
+        u = np.zeros((len(V), 3))
+        dist = np.maximum(np.abs(s), 1e-12)[:, None]
+        u[self.vertex_ids[active]] = (offset / dist)[active]
+        return lambda P: u * np.einsum("ij,ij->i", u, P)[:, None]

@@ -51,6 +51,7 @@ class TrackerConfig:
     lambda_c, lambda_d, lambda_b : weights of the correspondence, depth and boundary terms
     use_correspondence, use_depth, use_boundary : switch terms off for ablations
     alpha : adaptation rate of the semi-implicit scheme (larger = smaller, safer steps)
+    solver : "conjugate" (default) or "semi-implicit" (the paper's plain iteration); see perception.solver
     max_iterations : solver iterations per frame, shared by the outlier-rejection stages
     tolerance_m : stop when no vertex moves more than this in an iteration
     features : "auto" (SURF if available, else SIFT), "surf", "sift", "orb" or "klt"
@@ -75,8 +76,9 @@ class TrackerConfig:
     use_correspondence: bool = True
     use_depth: bool = True
     use_boundary: bool = True
-    alpha: float = 0.3
-    max_iterations: int = 24
+    alpha: float = 0.5
+    solver: str = "conjugate"
+    max_iterations: int = 10
     tolerance_m: float = 1e-4
     features: str = "auto"
     max_features: int = 500
@@ -88,7 +90,7 @@ class TrackerConfig:
     depth_outlier_m: float = 0.08
     boundary_gate_m: float = 0.06
     velocity_prediction: float = 0.5
-    init_iterations: int = 20
+    init_iterations: int = 10
     confidence_tol_m: float = 0.03
     lost_confidence: float = 0.4
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
@@ -115,8 +117,8 @@ class TrackerConfig:
     @classmethod
     def realtime(cls, **overrides) -> "TrackerConfig":
         """A preset for 30 Hz on two CPU cores: KLT points instead of descriptors, fewer iterations."""
-        base = dict(features="klt", max_features=300, max_iterations=12, outlier_radii_m=(0.04, 0.02),
-                    init_iterations=10)
+        base = dict(features="klt", max_features=300, max_iterations=6, outlier_radii_m=(0.04, 0.02),
+                    init_iterations=6)
         base.update(overrides)
         return cls(**base)
 
@@ -163,8 +165,8 @@ class MeshTracker:
         old = self.config
         self.config = config
         if self.initialised:
-            if config.alpha != old.alpha:
-                self._solver = SemiImplicitSolver(self.mesh.stiffness(), config.alpha)
+            if (config.alpha, config.solver) != (old.alpha, old.solver):
+                self._solver = SemiImplicitSolver(self.mesh.stiffness(), config.alpha, config.solver)
             if (config.features, config.max_features) != (old.features, old.max_features):
                 log.warning("feature settings change at the next initialise")
 
@@ -221,7 +223,7 @@ class MeshTracker:
             raise TrackingError("the object is too small for the mesh spacing")
         self.mesh = mesh
         self._camera = frame.camera
-        self._solver = SemiImplicitSolver(mesh.stiffness(), cfg.alpha)
+        self._solver = SemiImplicitSolver(mesh.stiffness(), cfg.alpha, cfg.solver)
         self._faces_out = self._orient_faces(mesh.faces, V0)
 
         boundary = self._boundary_term(obs, np.zeros(len(mesh.boundary)))

@@ -16,7 +16,7 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import ndimage
+from scipy.spatial import Delaunay
 
 log = logging.getLogger(__name__)
 
@@ -289,17 +289,6 @@ def points_in_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     return (crossings.sum(axis=1) % 2) == 1
 
 
-def _closest_on_polyline(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    """(N, 2) closest point of the closed polygon's outline to each point."""
-    a = polygon[None, :, :]
-    ab = np.roll(polygon, -1, axis=0)[None] - a
-    ap = points[:, None, :] - a
-    t = np.clip(np.sum(ap * ab, axis=2) / np.sum(ab * ab, axis=2), 0.0, 1.0)
-    proj = a + t[..., None] * ab
-    d = np.linalg.norm(points[:, None, :] - proj, axis=2)
-    return proj[np.arange(len(points)), np.argmin(d, axis=1)]
-
-
 def _signed_areas(uv: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(F,) signed area in the (u, v) plane; negative = counter-clockwise seen from the front."""
     p0, p1, p2 = uv[faces[:, 0]], uv[faces[:, 1]], uv[faces[:, 2]]
@@ -307,54 +296,66 @@ def _signed_areas(uv: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return 0.5 * (d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])
 
 
+def _resample_outline(polygon: np.ndarray, spacing_m: float) -> np.ndarray:
+    """Points along the closed polygon, every polygon corner kept, edges split into
+    equal pieces no longer than ``spacing_m``; (P', 2) float64."""
+    out = []
+    for a, b in zip(polygon, np.roll(polygon, -1, axis=0)):
+        n = max(1, int(np.ceil(np.linalg.norm(b - a) / spacing_m)))
+        t = np.arange(n)[:, None] / n
+        out.append(a + t * (b - a))
+    return np.concatenate(out)
+
+
+def _distance_to_outline(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """(N,) float64 distance of each point to the closed polygon's outline."""
+    a = polygon[None, :, :]
+    ab = np.roll(polygon, -1, axis=0)[None] - a
+    ap = points[:, None, :] - a
+    t = np.clip(np.sum(ap * ab, axis=2) / np.sum(ab * ab, axis=2), 0.0, 1.0)
+    return np.min(np.linalg.norm(ap - t[..., None] * ab, axis=2), axis=1)
+
+
 def tshirt_mesh(shape: TShirtShape | None = None, spacing_m: float = 0.03) -> ClothMesh:
     """A T-shirt outline (body and sleeves, one layer: the front) as a triangle mesh.
 
-    Grid cells whose centre lies inside the outline are kept (largest connected part),
-    then boundary vertices are moved onto the outline so sleeves and neck are not
-    staircases; a move that would squash a triangle below a quarter of its area is
-    skipped.
+    Points on a hexagonal lattice inside the outline (kept at least half a spacing away
+    from it) and points along the outline are Delaunay-triangulated; triangles whose
+    centroid falls outside the outline are dropped. The interior is then made of
+    near-equilateral triangles and the outline is followed exactly.
 
     shape : TShirtShape, default a medium adult shirt (0.50 m wide, 0.70 m long)
-    spacing_m : grid spacing in metres
+    spacing_m : target edge length in metres
     returns ClothMesh with landmarks ``left_shoulder, right_shoulder, neck,
     left_hem, right_hem, left_cuff, right_cuff``
     """
     shape = shape or TShirtShape()
     spacing_m = _check_size("tshirt_mesh: spacing_m", spacing_m, 1e-3)
     outline = shape.outline()
-    origin = outline.min(axis=0)
-    outline = outline - origin
+    outline = outline - outline.min(axis=0)
     extent = outline.max(axis=0)
     if np.any(extent < 4 * spacing_m):
         raise ValueError(f"tshirt_mesh: spacing_m={spacing_m} is too coarse for a {extent[0]:.2f}x{extent[1]:.2f} m shirt")
-    cols = int(np.ceil(extent[0] / spacing_m))
-    rows = int(np.ceil(extent[1] / spacing_m))
-    # centre the grid on the outline so both sides are cut alike
-    offset = 0.5 * (np.array([cols, rows]) * spacing_m - extent)
-    jj, ii = np.meshgrid(np.arange(cols), np.arange(rows))
-    centres = np.stack([(jj.ravel() + 0.5) * spacing_m, (ii.ravel() + 0.5) * spacing_m], axis=1) - offset
-    inside = points_in_polygon(centres, outline).reshape(rows, cols)
-    labels, n = ndimage.label(inside)
-    if n > 1:
-        sizes = ndimage.sum(inside, labels, index=np.arange(1, n + 1))
-        inside = labels == (1 + int(np.argmax(sizes)))
-    uv, faces = _mesh_from_cells(inside, spacing_m, spacing_m)
-    uv = uv - offset
 
-    on_boundary = boundary_vertices(faces)
-    target = _closest_on_polyline(uv[on_boundary], outline)
-    min_area = 0.25 * 0.5 * spacing_m**2
-    for k in np.argsort(np.linalg.norm(target - uv[on_boundary], axis=1)):
-        vid = on_boundary[k]
-        old = uv[vid].copy()
-        uv[vid] = target[k]
-        touching = np.any(faces == vid, axis=1)
-        if np.any(_signed_areas(uv, faces[touching]) > -min_area):
-            uv[vid] = old
-    shift = uv.min(axis=0)
-    uv = uv - shift
-    outline = outline - shift
+    row_step = spacing_m * np.sqrt(3.0) / 2.0
+    rows = np.arange(0.0, extent[1] + row_step, row_step)
+    cols = np.arange(0.0, extent[0] + spacing_m, spacing_m)
+    jj, ii = np.meshgrid(cols, np.arange(len(rows)))
+    lattice = np.stack([(jj + 0.5 * spacing_m * (ii % 2)).ravel(), rows[ii].ravel()], axis=1)
+    # centre the lattice on the shirt so left and right are cut alike
+    lattice[:, 0] += 0.5 * (extent[0] - (lattice[:, 0].max() + lattice[:, 0].min()))
+    keep = points_in_polygon(lattice, outline) & (_distance_to_outline(lattice, outline) >= 0.5 * spacing_m)
+    border = _resample_outline(outline, spacing_m)
+    uv = np.concatenate([border, lattice[keep]])
+
+    tri = Delaunay(uv).simplices
+    centroids = uv[tri].mean(axis=1)
+    faces = tri[points_in_polygon(centroids, outline)].astype(np.int64)
+    flip = _signed_areas(uv, faces) > 0
+    faces[flip] = faces[flip][:, [0, 2, 1]]
+    used, faces = np.unique(faces, return_inverse=True)
+    faces = faces.reshape(-1, 3)
+    uv = uv[used]
 
     # key points of the outline, in the order TShirtShape.outline lists them
     n_neck = len(outline) - 10

@@ -1,0 +1,200 @@
+"""One example of every message type, and the worked example of docs/protocol.md.
+
+``example_messages()`` builds a small, deterministic instance of every message class:
+tests round-trip them, and an implementer in another language can encode them to get
+test vectors. Running this module prints the byte-level worked example (a request and
+its reply, as frames, hex dumps and annotated msgpack) that docs/protocol.md embeds::
+
+    python -m ipc.examples > /tmp/example.md
+"""
+
+from __future__ import annotations
+
+import io
+import math
+
+import msgpack
+import numpy as np
+
+from ipc import codec
+from ipc import messages as m
+
+__all__ = ["example_messages", "worked_example"]
+
+
+def example_messages() -> dict[type, object]:
+    """Message class -> a deterministic instance with every optional part filled in."""
+    camera = m.CameraInfo(
+        width=4,
+        height=3,
+        K=np.array([[5.0, 0.0, 2.0], [0.0, 5.0, 1.5], [0.0, 0.0, 1.0]]),
+        D=np.array([0.1, -0.05, 0.0, 0.0, 0.01]),
+    )
+    depth = np.array([[0.0, 1.0, 1.25, 2.5], [0.5, np.nan, 0.75, 3.0], [1.5, 1.5, 0.0, 0.001]], dtype=np.float32)
+    rgb = np.arange(camera.height * camera.width * 3, dtype=np.uint8).reshape(camera.height, camera.width, 3)
+    # A flat 2 x 2 square of four vertices and two triangles, 0.1 m wide, 1 m away.
+    canonical = np.array([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0], [0.0, 0.1, 0.0], [0.1, 0.1, 0.0]])
+    estimate = m.MeshEstimate(
+        vertices=canonical + [0.0, 0.0, 1.0],
+        faces=np.array([[0, 1, 2], [1, 3, 2]], dtype=np.int32),
+        boundary=np.array([0, 1, 2, 3], dtype=np.int32),
+        canonical=canonical,
+        timestamp_s=12.5,
+        seq=42,
+        energies={"smoothness": 0.25, "depth": 1.5, "total": 1.75},
+        iterations=10,
+        confidence=0.9,
+        lost=False,
+        timing_ms=3.5,
+    )
+    s = math.sqrt(0.5)
+    corner = m.GraspPlan(
+        position=np.array([0.0, 0.0, 1.0]),
+        approach=np.array([0.0, 0.0, 1.0]),
+        quat_xyzw=np.array([0.0, 0.0, s, s]),
+        opening_width_m=0.04,
+        score=0.8,
+        vertex_id=0,
+        kind="corner",
+        timestamp_s=12.5,
+    )
+    boundary = m.GraspPlan(
+        position=np.array([0.05, 0.0, 1.0]),
+        approach=np.array([0.0, 0.0, 1.0]),
+        quat_xyzw=np.array([0.0, 0.0, 0.0, 1.0]),
+        opening_width_m=0.03,
+        score=0.5,
+        vertex_id=1,
+        kind="boundary",
+        timestamp_s=12.5,
+    )
+    mask = np.zeros((camera.height, camera.width), dtype=np.uint8)
+    mask[1:, 1:3] = 255
+    examples = [
+        camera,
+        m.RGBDFrame(rgb=rgb, depth_m=depth, camera=camera, timestamp_s=12.5, seq=42),
+        estimate,
+        corner,
+        m.GraspRequest(request_id=3, max_candidates=2, kinds=("corner", "boundary"), estimate=estimate),
+        m.GraspPlanReply(request_id=3, candidates=(corner, boundary), estimate_seq=42),
+        m.InitialiseRequest(request_id=7, mask=mask),
+        m.ResetRequest(request_id=8),
+        m.SetParametersRequest(request_id=9, parameters={"lambda_D": 0.6, "max_iterations": 20, "use_klt": True, "detector": "sift"}),
+        m.StatusRequest(request_id=10),
+        m.StatusReply(
+            request_id=10,
+            state="tracking",
+            frames_processed=120,
+            last_seq=42,
+            parameters={"lambda_D": 0.6, "max_iterations": 20},
+            message="ok",
+        ),
+        m.ErrorReply(code="invalid", message="InitialiseRequest.mask: expected shape (480, 640), got (3, 4)", request_id=7),
+        m.Heartbeat(source="perception", seq=5, timestamp_s=1700000000.25, period_s=1.0),
+    ]
+    return {type(x): x for x in examples}
+
+
+# ---------------------------------------------------------------------------
+# The worked example
+
+
+def _hexdump(data: bytes) -> str:
+    """xxd-style lines: offset, 16 bytes in hex, printable ASCII."""
+    lines = []
+    for off in range(0, len(data), 16):
+        chunk = data[off : off + 16]
+        hexes = " ".join(f"{b:02x}" for b in chunk)
+        text = "".join(chr(b) if 32 <= b < 127 else "." for b in chunk)
+        lines.append(f"{off:08x}  {hexes:<47}  {text}")
+    return "\n".join(lines)
+
+
+_FORMATS = {
+    0xC0: "nil", 0xC2: "false", 0xC3: "true", 0xC4: "bin 8", 0xC5: "bin 16", 0xC6: "bin 32",
+    0xCA: "float 32", 0xCB: "float 64", 0xCC: "uint 8", 0xCD: "uint 16", 0xCE: "uint 32",
+    0xCF: "uint 64", 0xD0: "int 8", 0xD1: "int 16", 0xD2: "int 32", 0xD3: "int 64",
+    0xD9: "str 8", 0xDA: "str 16", 0xDB: "str 32", 0xDC: "array 16", 0xDD: "array 32",
+    0xDE: "map 16", 0xDF: "map 32",
+}  # fmt: skip
+
+
+def _format_name(first: int) -> str:
+    """The msgpack format family of an item from its first byte (msgpack spec names)."""
+    for lo, hi, name in ((0x00, 0x7F, "positive fixint"), (0x80, 0x8F, "fixmap"), (0x90, 0x9F, "fixarray"), (0xA0, 0xBF, "fixstr"), (0xE0, 0xFF, "negative fixint")):
+        if lo <= first <= hi:
+            return name
+    return _FORMATS[first]
+
+
+def _annotate(data: bytes) -> str:
+    """One line per msgpack item of ``data``: offset, its bytes (head, cut when long), meaning."""
+    unpacker = msgpack.Unpacker(io.BytesIO(data), raw=False)
+    lines: list[str] = []
+
+    def item(depth: int) -> None:
+        start = unpacker.tell()
+        first = data[start]
+        if first <= 0x7F or first >= 0xE0 or 0xA0 <= first <= 0xBF or first in range(0xC0, 0xDC):
+            value = unpacker.unpack()
+            meaning = f"{len(value)} bytes" if isinstance(value, bytes) else repr(value)
+            emit(start, unpacker.tell(), depth, f"{_format_name(first)}: {meaning}")
+        elif 0x80 <= first <= 0x8F or first in (0xDE, 0xDF):
+            n = unpacker.read_map_header()
+            emit(start, unpacker.tell(), depth, f"{_format_name(first)}: map of {n} key/value pairs")
+            for _ in range(2 * n):
+                item(depth + 1)
+        else:  # fixarray, array 16, array 32: the only kinds left in msgpack
+            n = unpacker.read_array_header()
+            emit(start, unpacker.tell(), depth, f"{_format_name(first)}: array of {n} items")
+            for _ in range(n):
+                item(depth + 1)
+
+    def emit(start: int, end: int, depth: int, meaning: str) -> None:
+        raw = " ".join(f"{b:02x}" for b in data[start:end])
+        if len(raw) > 41:
+            raw = raw[:38] + "..."
+        lines.append(f"{start:04x}  {raw:<41}  {'  ' * depth}{meaning}")
+
+    item(0)
+    return "\n".join(lines)
+
+
+def _frames_markdown(title: str, frames: list) -> str:
+    parts = [f"**{title}**: {len(frames)} frame(s)\n"]
+    for i, frame in enumerate(frames):
+        data = bytes(frame)
+        what = "header" if i == 0 else "buffer"
+        parts.append(f"Frame {i} ({what}, {len(data)} bytes):\n\n```\n{_hexdump(data)}\n```\n")
+        if i == 0:
+            parts.append(f"Frame 0 item by item (offset, bytes, meaning):\n\n```\n{_annotate(data)}\n```\n")
+    return "\n".join(parts)
+
+
+def worked_example() -> str:
+    """Markdown of a request (InitialiseRequest with a 3 x 4 mask sent as a buffer frame)
+    and its reply (StatusReply), generated by running the codec."""
+    examples = example_messages()
+    request = examples[m.InitialiseRequest]
+    reply = m.StatusReply(request_id=request.request_id, state="initialising", last_seq=41, parameters={"lambda_D": 0.6})
+    # inline_max_bytes=0 sends the 12-byte mask as a buffer frame, to show the framing.
+    request_frames = codec.encode(request, inline_max_bytes=0)
+    reply_frames = codec.encode(reply)
+    return "\n".join(
+        [
+            "<!-- generated by `python -m ipc.examples`; tests/unit/test_ipc_protocol_doc.py checks it -->",
+            f"Request: `InitialiseRequest(request_id={request.request_id}, mask=<(3, 4) uint8 {request.mask.tolist()}>)`",
+            "",
+            _frames_markdown("Request", request_frames),
+            f"Reply: `{reply!r}`",
+            "",
+            _frames_markdown("Reply", reply_frames),
+            "<!-- end of generated example -->",
+        ]
+    )
+
+
+if __name__ == "__main__":
+    import sys
+
+    sys.stdout.write(worked_example() + "\n")

@@ -1,0 +1,349 @@
+"""PyBullet physics wrapper: a deformable world with one cloth, rigid boxes and grippers.
+
+This is the only module that steps PyBullet. It owns a DIRECT connection (no GUI), so
+any number of worlds can live in one process. Accessors return NumPy arrays in the
+world frame (z up, metres); scene logic (``sim.scenes``) stays outside.
+
+Cloth model: PyBullet's mass-spring soft body. Its deformable solver integrates the
+spring forces explicitly (only damping is implicit), so a spring stiffer than the node
+masses and time step allow explodes, and a soft one lets the cloth stretch like rubber.
+``ClothMaterial.spring_stiffness`` therefore derives the stiffness from the node mass
+and time step (``stiffness_number`` = omega * dt of one spring on one node), and
+``sim.cloth_mesh.edge_strain`` measures the stretch that results.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from sim.cloth_mesh import ClothMesh, write_obj
+
+log = logging.getLogger(__name__)
+
+
+def _pybullet():
+    # imported here so that the pure modules of sim (meshes, noise, ground truth) and
+    # their users never need PyBullet
+    import pybullet
+
+    return pybullet
+
+
+@dataclass(frozen=True)
+class ClothMaterial:
+    """Mass-spring parameters of a cloth.
+
+    mass_per_area_kg_m2 : areal density (printed poster paper ~0.2, T-shirt ~0.18,
+        towel ~0.4)
+    stiffness_number : omega * dt of one stretch spring acting on one node; the spring
+        constant is ``node_mass * (stiffness_number / dt) ** 2`` (N/m). Explicit
+        integration is stable below ~2.5 with ``damping_number`` 0.3 (measured on a
+        2.5 cm grid at dt = 1/240 s); 2.0 keeps a margin.
+    bending_ratio : bending-spring constant relative to the stretch springs
+    damping_number : damping constant of each spring as ``node_mass / dt * damping_number``
+        (N s/m); damps relative motion of neighbours, not swinging of the whole cloth
+    friction : contact friction coefficient with rigid bodies
+    collision_margin_m : contact thickness around the cloth
+    """
+
+    mass_per_area_kg_m2: float = 0.2
+    stiffness_number: float = 2.0
+    bending_ratio: float = 0.05
+    damping_number: float = 0.3
+    friction: float = 0.8
+    collision_margin_m: float = 0.006
+
+    def node_mass_kg(self, mesh: ClothMesh) -> float:
+        """Mean mass of one node of ``mesh`` (kg)."""
+        return self.total_mass_kg(mesh) / mesh.n_vertices
+
+    def total_mass_kg(self, mesh: ClothMesh) -> float:
+        """Mass of the whole cloth (kg): density times the flat mesh's area."""
+        uv = mesh.uv_m
+        d1 = uv[mesh.faces[:, 1]] - uv[mesh.faces[:, 0]]
+        d2 = uv[mesh.faces[:, 2]] - uv[mesh.faces[:, 0]]
+        area = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]).sum()
+        return float(self.mass_per_area_kg_m2 * area)
+
+    def spring_stiffness(self, mesh: ClothMesh, timestep_s: float) -> float:
+        """Stretch spring constant (N/m) for ``mesh`` simulated at ``timestep_s``."""
+        return self.node_mass_kg(mesh) * (self.stiffness_number / timestep_s) ** 2
+
+    def damping(self, mesh: ClothMesh, timestep_s: float) -> float:
+        """Spring damping constant (N s/m) for ``mesh`` simulated at ``timestep_s``."""
+        return self.node_mass_kg(mesh) / timestep_s * self.damping_number
+
+
+def _check_vector(value, n: int, name: str) -> np.ndarray:
+    arr = np.asarray(value, dtype=np.float64)
+    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: expected {n} finite numbers, got shape {arr.shape}")
+    return arr
+
+
+def _check_quat(value, name: str) -> np.ndarray:
+    q = _check_vector(value, 4, name)
+    norm = np.linalg.norm(q)
+    if abs(norm - 1.0) > 1e-6:
+        raise ValueError(f"{name}: expected a unit quaternion (x, y, z, w), got norm {norm:.6g}")
+    return q
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
+    """Spherical interpolation of unit quaternions (x, y, z, w), t in [0, 1]."""
+    q0 = np.asarray(q0, dtype=np.float64)
+    q1 = np.asarray(q1, dtype=np.float64)
+    dot = float(q0 @ q1)
+    if dot < 0:  # take the short way round
+        q1, dot = -q1, -dot
+    if dot > 0.9995:
+        q = q0 + t * (q1 - q0)
+        return q / np.linalg.norm(q)
+    theta = np.arccos(dot)
+    return (np.sin((1 - t) * theta) * q0 + np.sin(t * theta) * q1) / np.sin(theta)
+
+
+class Gripper:
+    """A kinematic holder: a massless body moved by pose that anchors cloth nodes.
+
+    It emulates a robot gripper (or a hand): ``close_on(nodes)`` pins those cloth nodes
+    to it where they are now, so they follow its position and orientation; ``open()``
+    releases them. ``move_to`` sets the pose it reaches at the end of the next
+    ``ClothPhysics.advance`` (straight line, slerped orientation). The body has no
+    collision shape, so the cloth never collides with it.
+
+    Create it with ``ClothPhysics.add_gripper``.
+    """
+
+    def __init__(self, physics: "ClothPhysics", body_id: int, position: np.ndarray, quat_xyzw: np.ndarray):
+        self._physics = physics
+        self.body_id = body_id
+        self._position = position
+        self._quat = quat_xyzw
+        self._target = (position, quat_xyzw)
+        self._anchors: list[int] = []
+        self._held: list[int] = []
+
+    @property
+    def position(self) -> np.ndarray:
+        """(3,) float64 world position, metres."""
+        return self._position.copy()
+
+    @property
+    def quat_xyzw(self) -> np.ndarray:
+        """(4,) float64 world orientation (x, y, z, w)."""
+        return self._quat.copy()
+
+    @property
+    def held_nodes(self) -> np.ndarray:
+        """(K,) int64 ids of the cloth nodes anchored to the gripper."""
+        return np.array(self._held, dtype=np.int64)
+
+    @property
+    def is_closed(self) -> bool:
+        return bool(self._held)
+
+    def move_to(self, position, quat_xyzw=None) -> None:
+        """Pose to reach by the end of the next ``ClothPhysics.advance``.
+
+        position : (3,) float, metres, world frame; quat_xyzw : (4,) unit quaternion,
+        default the current orientation
+        """
+        pos = _check_vector(position, 3, "Gripper.move_to: position")
+        quat = self._quat if quat_xyzw is None else _check_quat(quat_xyzw, "Gripper.move_to: quat_xyzw")
+        self._target = (pos, quat)
+
+    def close_on(self, nodes) -> None:
+        """Anchor cloth nodes to the gripper at their current positions.
+
+        nodes : (K,) int ids of cloth nodes (e.g. ``ClothPhysics.nodes_near``); nodes
+        already held are skipped
+        """
+        ids = np.unique(np.asarray(nodes, dtype=np.int64).ravel())
+        n = self._physics.cloth_mesh.n_vertices
+        if ids.size == 0:
+            raise ValueError("Gripper.close_on: expected at least one node id, got none")
+        if ids.min() < 0 or ids.max() >= n:
+            raise ValueError(f"Gripper.close_on: node ids outside [0, {n})")
+        p = self._physics.pybullet
+        for node in ids:
+            if node in self._held:
+                continue
+            anchor = p.createSoftBodyAnchor(self._physics.cloth_id, int(node), self.body_id, -1,
+                                            physicsClientId=self._physics.client)
+            self._anchors.append(anchor)
+            self._held.append(int(node))
+        log.debug("gripper %d holds %d nodes", self.body_id, len(self._held))
+
+    def open(self) -> None:
+        """Release every anchored node."""
+        p = self._physics.pybullet
+        for anchor in self._anchors:
+            p.removeConstraint(anchor, physicsClientId=self._physics.client)
+        self._anchors.clear()
+        self._held.clear()
+
+    def _set_pose(self, position: np.ndarray, quat: np.ndarray) -> None:
+        self._physics.pybullet.resetBasePositionAndOrientation(
+            self.body_id, position.tolist(), quat.tolist(), physicsClientId=self._physics.client)
+        self._position, self._quat = position, quat
+
+    def _interpolated(self, start: tuple, t: float) -> tuple[np.ndarray, np.ndarray]:
+        (p0, q0), (p1, q1) = start, self._target
+        return p0 + t * (p1 - p0), slerp(q0, q1, t)
+
+
+class ClothPhysics:
+    """A PyBullet deformable world (DIRECT mode) holding one cloth.
+
+    timestep_s : physics step in seconds; ``advance`` runs whole steps
+    gravity_m_s2 : (3,) world gravity
+
+    Use as a context manager, or call ``close()``: it disconnects PyBullet and removes
+    the temporary mesh and texture files.
+    """
+
+    def __init__(self, timestep_s: float = 1.0 / 240.0, gravity_m_s2=(0.0, 0.0, -9.81)):
+        if not 0 < timestep_s <= 0.02:
+            raise ValueError(f"ClothPhysics: expected 0 < timestep_s <= 0.02, got {timestep_s}")
+        self.pybullet = _pybullet()
+        p = self.pybullet
+        self.timestep_s = float(timestep_s)
+        self.client = p.connect(p.DIRECT)
+        p.resetSimulation(p.RESET_USE_DEFORMABLE_WORLD, physicsClientId=self.client)
+        p.setGravity(*_check_vector(gravity_m_s2, 3, "gravity_m_s2"), physicsClientId=self.client)
+        p.setTimeStep(self.timestep_s, physicsClientId=self.client)
+        self._tmp = tempfile.TemporaryDirectory(prefix="clothkit_sim_")
+        self.time_s = 0.0
+        self.cloth_id: int | None = None
+        self.cloth_mesh: ClothMesh | None = None
+        self.grippers: list[Gripper] = []
+
+    def __enter__(self) -> "ClothPhysics":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Disconnect from PyBullet and delete the temporary files (idempotent)."""
+        if self.client is not None and self.client >= 0:
+            self.pybullet.disconnect(physicsClientId=self.client)
+            self.client = None
+        self._tmp.cleanup()
+
+    def add_box(self, half_extents_m, position, quat_xyzw=(0.0, 0.0, 0.0, 1.0),
+                rgba=(0.6, 0.6, 0.6, 1.0)) -> int:
+        """A static, collidable box (floor, wall, chair part); returns its body id.
+
+        half_extents_m : (3,) metres; position : (3,) metres, world; rgba : 4 floats in [0, 1]
+        """
+        p = self.pybullet
+        half = _check_vector(half_extents_m, 3, "add_box: half_extents_m")
+        if np.any(half <= 0):
+            raise ValueError(f"add_box: half extents must be positive, got {half.tolist()}")
+        pos = _check_vector(position, 3, "add_box: position")
+        quat = _check_quat(quat_xyzw, "add_box: quat_xyzw")
+        col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half.tolist(), physicsClientId=self.client)
+        vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half.tolist(), rgbaColor=list(rgba),
+                                  physicsClientId=self.client)
+        return p.createMultiBody(0.0, col, vis, pos.tolist(), quat.tolist(), physicsClientId=self.client)
+
+    def add_cloth(self, mesh: ClothMesh, vertices_world: np.ndarray, material: ClothMaterial,
+                  texture_rgb: np.ndarray) -> int:
+        """Load the cloth as a PyBullet mass-spring soft body; returns its body id.
+
+        mesh : ClothMesh (topology, rest lengths come from ``vertices_world``)
+        vertices_world : (V, 3) float, metres, initial (unstretched) node positions
+        material : ClothMaterial
+        texture_rgb : (H, W, 3) uint8, drawn on both sides, spanning the mesh's bounding box
+        """
+        if self.cloth_id is not None:
+            raise ValueError("add_cloth: this world already has a cloth")
+        p = self.pybullet
+        verts = np.asarray(vertices_world, dtype=np.float64)
+        if verts.shape != (mesh.n_vertices, 3):
+            raise ValueError(f"add_cloth: expected vertices_world of shape ({mesh.n_vertices}, 3), got {verts.shape}")
+        tex = np.asarray(texture_rgb)
+        if tex.ndim != 3 or tex.shape[2] != 3 or tex.dtype != np.uint8:
+            raise ValueError(f"add_cloth: expected an (H, W, 3) uint8 texture, got {tex.dtype} {tex.shape}")
+        obj_path = os.path.join(self._tmp.name, "cloth.obj")
+        tex_path = os.path.join(self._tmp.name, "cloth_texture.png")
+        write_obj(obj_path, verts, mesh.faces, mesh.texture_coords())
+        cv2.imwrite(tex_path, tex[:, :, ::-1])
+        stiffness = material.spring_stiffness(mesh, self.timestep_s)
+        self.cloth_id = p.loadSoftBody(
+            obj_path,
+            basePosition=[0.0, 0.0, 0.0],
+            mass=material.total_mass_kg(mesh),
+            collisionMargin=material.collision_margin_m,
+            useMassSpring=1,
+            useBendingSprings=1,
+            springElasticStiffness=stiffness,
+            springBendingStiffness=stiffness * material.bending_ratio,
+            springDampingStiffness=material.damping(mesh, self.timestep_s),
+            springDampingAllDirections=1,
+            useSelfCollision=0,
+            useFaceContact=1,
+            frictionCoeff=material.friction,
+            physicsClientId=self.client,
+        )
+        texture_id = p.loadTexture(tex_path, physicsClientId=self.client)
+        p.changeVisualShape(self.cloth_id, -1, textureUniqueId=texture_id,
+                            flags=p.VISUAL_SHAPE_DOUBLE_SIDED, physicsClientId=self.client)
+        self.cloth_mesh = mesh
+        loaded = self.cloth_vertices()
+        if loaded.shape != verts.shape or np.abs(loaded - verts).max() > 1e-4:
+            raise RuntimeError("add_cloth: PyBullet reordered or moved the cloth's nodes")
+        log.info("cloth: %d nodes, %.3f kg, spring %.1f N/m", mesh.n_vertices, material.total_mass_kg(mesh), stiffness)
+        return self.cloth_id
+
+    def cloth_vertices(self) -> np.ndarray:
+        """(V, 3) float64 world positions of the cloth nodes, metres, in mesh vertex order."""
+        if self.cloth_id is None:
+            raise ValueError("cloth_vertices: no cloth in this world (call add_cloth first)")
+        p = self.pybullet
+        _, verts = p.getMeshData(self.cloth_id, -1, flags=p.MESH_DATA_SIMULATION_MESH, physicsClientId=self.client)
+        return np.asarray(verts, dtype=np.float64)
+
+    def nodes_near(self, point, radius_m: float) -> np.ndarray:
+        """(K,) int64 ids of cloth nodes within ``radius_m`` of ``point`` (3,), world metres."""
+        centre = _check_vector(point, 3, "nodes_near: point")
+        d = np.linalg.norm(self.cloth_vertices() - centre, axis=1)
+        return np.nonzero(d <= radius_m)[0].astype(np.int64)
+
+    def add_gripper(self, position, quat_xyzw=(0.0, 0.0, 0.0, 1.0), visual_half_extents_m=None,
+                    rgba=(0.2, 0.2, 0.2, 1.0)) -> Gripper:
+        """A kinematic gripper at a world pose; invisible unless ``visual_half_extents_m`` (3,) is given."""
+        p = self.pybullet
+        pos = _check_vector(position, 3, "add_gripper: position")
+        quat = _check_quat(quat_xyzw, "add_gripper: quat_xyzw")
+        vis = -1
+        if visual_half_extents_m is not None:
+            half = _check_vector(visual_half_extents_m, 3, "add_gripper: visual_half_extents_m")
+            vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half.tolist(), rgbaColor=list(rgba),
+                                      physicsClientId=self.client)
+        body = p.createMultiBody(0.0, -1, vis, pos.tolist(), quat.tolist(), physicsClientId=self.client)
+        gripper = Gripper(self, body, pos, quat)
+        self.grippers.append(gripper)
+        return gripper
+
+    def advance(self, duration_s: float) -> None:
+        """Step the world for ``duration_s`` (rounded to whole steps), moving each gripper
+        along a straight line to its ``move_to`` target, reached on the last step."""
+        n = int(round(duration_s / self.timestep_s))
+        if n < 0:
+            raise ValueError(f"advance: expected a non-negative duration, got {duration_s}")
+        p = self.pybullet
+        starts = [(g.position, g.quat_xyzw) for g in self.grippers]
+        for k in range(1, n + 1):
+            for gripper, start in zip(self.grippers, starts):
+                gripper._set_pose(*gripper._interpolated(start, k / n))
+            p.stepSimulation(physicsClientId=self.client)
+        self.time_s += n * self.timestep_s

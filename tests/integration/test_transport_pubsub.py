@@ -1,0 +1,203 @@
+"""PUB/SUB on loopback: delivery, newest-message semantics with bounded memory, heartbeats,
+a publisher killed and restarted, malformed messages. Random free ports; every test
+starts and stops what it needs, and every wait has a timeout."""
+
+import dataclasses
+import logging
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import zmq
+
+from ipc import messages as m
+from ipc.codec import encode
+from ipc.examples import example_messages
+from ipc.transport import Publisher, Subscriber
+
+pytestmark = pytest.mark.timeout(60)
+
+ANY_PORT = "tcp://127.0.0.1:*"
+REPO = Path(__file__).resolve().parents[2]
+FRAME = example_messages()[m.RGBDFrame]
+
+
+def wait_until(predicate, timeout_s: float, poll_s: float = 0.01) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(poll_s)
+    return predicate()
+
+
+def publish_until_received(pub: Publisher, sub: Subscriber, msg, timeout_s: float = 5.0):
+    """PUB drops messages until the subscription has arrived (slow joiner): resend until one lands."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        pub.publish(msg)
+        got = sub.recv_latest(timeout_s=0.05)
+        if got is not None:
+            return got
+    raise AssertionError("nothing received")
+
+
+def rss_bytes() -> int:
+    with open("/proc/self/statm") as f:
+        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+
+
+def test_delivery_heartbeats_and_filtering():
+    with Publisher(ANY_PORT, source="frames", heartbeat_period_s=0.05) as pub, Subscriber(pub.endpoint, accept=(m.RGBDFrame,)) as sub:
+        assert pub.endpoint.startswith("tcp://127.0.0.1:") and not pub.endpoint.endswith("*")
+        got = publish_until_received(pub, sub, FRAME)
+        assert got.seq == FRAME.seq and np.array_equal(got.rgb, FRAME.rgb)
+        assert np.array_equal(got.depth_m, np.nan_to_num(FRAME.depth_m, nan=0.0))
+        assert not got.rgb.flags.writeable  # a zero-copy view on the received frame
+        assert wait_until(lambda: sub.last_heartbeat is not None and sub.last_heartbeat.seq >= 2, 2.0)
+        assert sub.last_heartbeat.source == "frames" and sub.last_heartbeat.period_s == 0.05
+        assert sub.age_s < 1.0 and not sub.stale
+        pub.publish(m.StatusReply())  # not accepted by this subscriber: dropped
+        assert sub.recv_latest(timeout_s=0.2) is None
+        assert sub.received >= 3 and sub.malformed == 0
+
+
+def test_uint16_depth_publisher():
+    with Publisher(ANY_PORT, source="sensor", depth_scale=1000.0) as pub, Subscriber(pub.endpoint) as sub:
+        got = publish_until_received(pub, sub, FRAME)
+        assert got.depth_m.dtype == np.float32
+        assert np.allclose(got.depth_m, np.nan_to_num(FRAME.depth_m, nan=0.0), atol=0.0005 + 1e-6)
+
+
+def test_slow_consumer_gets_the_newest_frame_and_memory_stays_bounded():
+    """A consumer that takes nothing while 300 full-size frames (620 MB in all) are published
+    then gets the newest frame, and no backlog after it."""
+    cam = m.CameraInfo.from_fov(640, 480, 1.0)
+    depth = np.full((480, 640), 1.5, np.float32)
+    with Publisher(ANY_PORT, source="frames") as pub, Subscriber(pub.endpoint) as sub:
+        first = m.RGBDFrame(np.zeros((480, 640, 3), np.uint8), depth, cam, seq=0)
+        publish_until_received(pub, sub, first)
+        baseline, peak = rss_bytes(), 0
+        n = 300
+        for seq in range(1, n + 1):
+            # Fresh buffers every frame, as from a camera: anything queued would add up.
+            rgb = np.full((480, 640, 3), seq % 256, np.uint8)
+            pub.publish(m.RGBDFrame(rgb, depth.copy(), cam, seq=seq))
+            if seq % 10 == 0:
+                peak = max(peak, rss_bytes() - baseline)
+        time.sleep(0.3)  # let the last frames cross; then one more that must be the one returned
+        pub.publish(m.RGBDFrame(np.full((480, 640, 3), 7, np.uint8), depth, cam, seq=n + 1))
+        time.sleep(0.3)
+        peak = max(peak, rss_bytes() - baseline)
+        newest = sub.recv_latest(timeout_s=2.0)
+        assert newest is not None and newest.seq == n + 1 and newest.rgb[0, 0, 0] == 7
+        assert sub.recv_latest(timeout_s=0.2) is None  # no backlog behind the newest
+        assert sub.skipped >= n // 2
+        assert peak < 150 * 2**20, f"memory grew by {peak / 2**20:.0f} MiB"
+
+
+PUBLISHER_SCRIPT = """
+import dataclasses, sys, time
+from ipc.examples import example_messages
+from ipc.messages import RGBDFrame
+from ipc.transport import Publisher
+frame = example_messages()[RGBDFrame]
+with Publisher(sys.argv[1], source="frames", heartbeat_period_s=0.1) as pub:
+    print(pub.endpoint, flush=True)
+    seq = 0
+    while True:
+        pub.publish(dataclasses.replace(frame, seq=seq))
+        seq += 1
+        time.sleep(0.02)
+"""
+
+
+def start_publisher(endpoint: str) -> tuple[subprocess.Popen, str]:
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen([sys.executable, "-c", PUBLISHER_SCRIPT, endpoint], stdout=subprocess.PIPE, text=True, cwd=REPO, env=env)
+    line = proc.stdout.readline().strip()  # the endpoint actually bound, once it is bound
+    assert line.startswith("tcp://"), f"publisher did not start: {line!r}"
+    return proc, line
+
+
+def test_publisher_killed_and_restarted(caplog):
+    caplog.set_level(logging.INFO, logger="ipc.transport")
+    events = []
+    proc, endpoint = start_publisher(ANY_PORT)
+    try:
+        with Subscriber(endpoint, stale_after_s=0.5, on_liveness=lambda alive, s: events.append((alive, s))) as sub:
+            first = sub.recv_latest(timeout_s=10.0)
+            assert first is not None
+            assert wait_until(lambda: sub.last_heartbeat is not None and sub.last_heartbeat.seq >= 3, 5.0)
+            proc.kill()
+            proc.wait(timeout=5)
+            assert wait_until(lambda: sub.stale, 3.0)
+            assert sub.age_s > 0.5
+            assert events and events[0][0] is False and events[0][1] > 0.5
+            assert any(r.levelno == logging.WARNING and "no message from publisher 'frames'" in r.getMessage() for r in caplog.records)
+            sub.recv_latest(timeout_s=0.01)  # drop a frame taken before the kill, if any
+
+            proc, _ = start_publisher(endpoint)
+            again = sub.recv_latest(timeout_s=10.0)
+            assert again is not None and again.seq < 20  # counted from 0 again by the new process
+            assert not sub.stale
+            assert events[-1][0] is True and events[-1][1] > 0.5
+            assert any("receiving again" in r.getMessage() for r in caplog.records)
+            assert wait_until(lambda: any("restarted" in r.getMessage() for r in caplog.records), 3.0)
+    finally:
+        proc.kill()
+        proc.wait(timeout=5)
+
+
+def test_never_heard_publisher_is_reported_stale(caplog):
+    with Publisher(ANY_PORT, source="x") as pub:
+        endpoint = pub.endpoint
+    with Subscriber(endpoint, stale_after_s=0.2) as sub:
+        assert sub.age_s == float("inf")
+        assert wait_until(lambda: sub.stale, 2.0)
+        assert sub.recv_latest(timeout_s=0.05) is None
+
+
+def test_malformed_messages_are_dropped_and_counted(caplog):
+    ctx = zmq.Context.instance()
+    raw = ctx.socket(zmq.PUB)
+    raw.setsockopt(zmq.LINGER, 0)
+    port = raw.bind_to_random_port("tcp://127.0.0.1")
+    try:
+        with Subscriber(f"tcp://127.0.0.1:{port}") as sub:
+            good = encode(dataclasses.replace(FRAME, seq=5))
+            deadline = time.monotonic() + 5.0
+            got = None
+            while got is None and time.monotonic() < deadline:
+                raw.send_multipart([b"\xc1 not msgpack"])
+                raw.send_multipart([good[0][:-3]])
+                raw.send_multipart([b"x"] * 40)  # more frames than the limit
+                raw.send_multipart(good)
+                got = sub.recv_latest(timeout_s=0.05)
+            assert got is not None and got.seq == 5
+            assert wait_until(lambda: sub.malformed >= 3, 2.0)
+            assert any("dropped a malformed message" in r.getMessage() for r in caplog.records)
+    finally:
+        raw.close()
+
+
+def test_closed_subscriber_returns_none_and_bad_arguments_are_named():
+    with Publisher(ANY_PORT, source="x") as pub:
+        sub = Subscriber(pub.endpoint)
+        sub.close()
+        assert sub.recv_latest(timeout_s=1.0) is None
+        with pytest.raises(ValueError, match="Subscriber.stale_after_s"):
+            Subscriber(pub.endpoint, stale_after_s=0)
+        with pytest.raises(ValueError, match="Subscriber.accept"):
+            Subscriber(pub.endpoint, accept=(dict,))
+    with pytest.raises(ValueError, match=r"Heartbeat\.source"):
+        Publisher(ANY_PORT, source="")
+    with pytest.raises(ValueError, match=r"tcp://256\.0\.0\.1:1: cannot bind"):
+        Publisher("tcp://256.0.0.1:1", source="x")
+    with Publisher(ANY_PORT, source="x") as pub:
+        with pytest.raises(ValueError, match="cannot bind"):
+            Publisher(pub.endpoint, source="y")  # port taken

@@ -1,0 +1,141 @@
+"""Energy terms: gradients against finite differences, and known values."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from perception.camera import backproject, project
+from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, SmoothnessTerm
+from perception.mesh import barycentric_matrix, rectangle_mesh
+
+K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+
+
+def mesh_vertices(rng, z=1.2):
+    m = rectangle_mesh(0.3, 0.24, 0.03)
+    V = m.canonical - [0.15, 0.12, 0.0]
+    V[:, 2] = z + 0.05 * np.sin(4 * V[:, 0]) + rng.normal(0, 0.003, len(V))
+    return m, V
+
+
+def numeric_gradient(term, V, eps=1e-7, n_check=40, rng=None):
+    rng = rng or np.random.default_rng(0)
+    idx = rng.choice(len(V), size=min(n_check, len(V)), replace=False)
+    g = np.zeros((len(idx), 3))
+    for a, i in enumerate(idx):
+        for c in range(3):
+            Vp, Vm = V.copy(), V.copy()
+            Vp[i, c] += eps
+            Vm[i, c] -= eps
+            g[a, c] = (term.evaluate(Vp)[0] - term.evaluate(Vm)[0]) / (2 * eps)
+    return idx, g
+
+
+def check_gradient(term, V):
+    _, grad = term.evaluate(V)
+    idx, g = numeric_gradient(term, V)
+    scale = max(np.abs(g).max(), 1e-9)
+    np.testing.assert_allclose(grad[idx], g, atol=1e-4 * scale + 1e-10)
+    assert np.abs(grad).max() > 0  # the check is not vacuous
+
+
+def test_smoothness_gradient_and_value():
+    rng = np.random.default_rng(1)
+    m, V = mesh_vertices(rng)
+    term = SmoothnessTerm(m.stiffness())
+    check_gradient(term, V)
+    kc = m.k_col()
+    e, _ = term.evaluate(V)
+    assert e == pytest.approx(0.5 * np.sum((kc @ V) ** 2), rel=1e-12)  # eq. 9 equals eq. 10
+
+
+def test_correspondence_gradient_and_weights():
+    rng = np.random.default_rng(2)
+    m, V = mesh_vertices(rng)
+    fid = rng.integers(0, len(m.faces), 60)
+    bary = rng.dirichlet([1, 1, 1], 60)
+    B = barycentric_matrix(fid, bary, m.faces, m.n_vertices)
+    targets = B @ V + rng.normal(0, 0.01, (60, 3))
+    w = (rng.random(60) > 0.3).astype(float)
+    term = CorrespondenceTerm(B, targets, w)
+    check_gradient(term, V)
+    e, _ = term.evaluate(V)
+    assert e == pytest.approx(0.5 * np.sum(w * np.sum((B @ V - targets) ** 2, axis=1)))
+    # zero when every target sits on its mesh point
+    assert CorrespondenceTerm(B, B @ V, np.ones(60)).evaluate(V)[0] == pytest.approx(0.0, abs=1e-20)
+
+
+def range_image_of_plane(z):
+    h, w = 480, 640
+    uu, vv = np.meshgrid(np.arange(w), np.arange(h))
+    rays = np.stack([(uu - K[0, 2]) / K[0, 0], (vv - K[1, 2]) / K[1, 1], np.ones_like(uu, float)], -1)
+    return (z * np.linalg.norm(rays, axis=-1)).astype(np.float32)
+
+
+def test_depth_gradient_is_along_the_ray():
+    rng = np.random.default_rng(3)
+    m, V = mesh_vertices(rng)
+    term = DepthTerm(range_image_of_plane(1.25), K, outlier_m=0.5)
+    check_gradient(term, V)
+    _, grad = term.evaluate(V)
+    cos = np.abs(np.einsum("ij,ij->i", grad, V)) / (np.linalg.norm(grad, axis=1) * np.linalg.norm(V, axis=1))
+    assert np.all(cos[np.linalg.norm(grad, axis=1) > 0] > 1 - 1e-9)
+
+
+def test_depth_residual_is_distance_along_ray_and_outliers_ignored():
+    uv = np.array([[100.0, 50.0], [320.0, 240.0], [600.0, 400.0]])
+    on_surface = backproject(uv, np.full(3, 1.25), K)
+    term = DepthTerm(range_image_of_plane(1.25), K, outlier_m=0.1)
+    assert term.evaluate(on_surface)[0] == pytest.approx(0.0, abs=1e-10)
+    moved = on_surface * 1.04  # 4 % further along each ray
+    r, active, _ = term.lookup(moved)
+    np.testing.assert_allclose(r, 0.04 * np.linalg.norm(on_surface, axis=1), rtol=1e-5)
+    far = on_surface * 1.5
+    assert not term.lookup(far)[1].any()  # beyond outlier_m: no force
+
+
+def test_depth_missing_contributes_nothing():
+    rng = np.random.default_rng(4)
+    _, V = mesh_vertices(rng)
+    term = DepthTerm(np.zeros((480, 640), np.float32), K, outlier_m=0.5)
+    e, g = term.evaluate(V)
+    assert e == 0.0 and not g.any()
+
+
+def outline_square(z, half=0.1, n=200):
+    t = np.linspace(-half, half, n)
+    pts = np.concatenate([np.column_stack([t, np.full(n, -half)]), np.column_stack([t, np.full(n, half)]),
+                          np.column_stack([np.full(n, -half), t]), np.column_stack([np.full(n, half), t])])
+    outline = np.column_stack([pts, np.full(len(pts), z)])
+    # object mask: the square's image
+    uv = project(np.array([[-half, -half, z], [half, half, z]]), K)
+    mask = np.zeros((480, 640), bool)
+    mask[int(uv[0, 1]) : int(uv[1, 1]) + 1, int(uv[0, 0]) : int(uv[1, 0]) + 1] = True
+    return outline, mask
+
+
+def test_boundary_gradient_and_sign():
+    rng = np.random.default_rng(5)
+    outline, mask = outline_square(1.2)
+    # boundary vertices scattered around the square's edge, inside and outside
+    ang = rng.uniform(0, 2 * np.pi, 30)
+    V = np.column_stack([0.1 * np.sign(np.cos(ang)) + rng.normal(0, 0.01, 30),
+                         0.1 * np.sin(ang), np.full(30, 1.2) + rng.normal(0, 0.005, 30)])
+    ids = np.arange(30)
+    term = BoundaryTerm(ids, np.full(30, 0.004), outline, mask, K, gate_m=0.05)
+    check_gradient(term, V)
+    s, _, sign, active = term.signed_distance(V)
+    inside = np.abs(V[:, 0] / V[:, 2]) < 0.1 / 1.2
+    clear = active & (np.abs(np.abs(V[:, 0] / V[:, 2]) - 0.1 / 1.2) > 3 / 500)  # more than 3 px from the edge
+    assert clear.sum() > 10
+    np.testing.assert_array_equal(sign[clear] > 0, inside[clear])
+
+
+def test_boundary_pulls_outside_vertex_inward():
+    outline, mask = outline_square(1.2)
+    V = np.array([[0.13, 0.0, 1.2]])  # 3 cm outside the right edge
+    term = BoundaryTerm(np.array([0]), np.array([0.01]), outline, mask, K, gate_m=0.1)
+    _, g = term.evaluate(V)
+    assert g[0, 0] > 0  # descent (-g) moves it toward -x, back inside
+    e, _ = term.evaluate(V)
+    assert e == pytest.approx(0.5 * (0.03 + 0.01) ** 2, rel=1e-3)

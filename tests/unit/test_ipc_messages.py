@@ -1,0 +1,125 @@
+"""Constructors of the request, reply and heartbeat messages: values kept, bad input named."""
+
+import math
+
+import numpy as np
+import pytest
+
+from ipc import messages as m
+from ipc.examples import example_messages
+
+
+def test_examples_cover_every_message_class():
+    classes = {obj for obj in vars(m).values() if isinstance(obj, type) and obj.__module__ == m.__name__ and hasattr(obj, "__dataclass_fields__")}
+    assert classes == set(example_messages())
+
+
+def test_grasp_request_defaults_and_conversion():
+    r = m.GraspRequest()
+    assert (r.request_id, r.max_candidates, r.kinds, r.estimate) == (0, 5, m.GraspPlan.KINDS, None)
+    assert m.GraspRequest(kinds=["corner"], max_candidates=np.int64(3)).kinds == ("corner",)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"request_id": -1}, r"GraspRequest\.request_id"),
+        ({"request_id": 1.5}, r"GraspRequest\.request_id"),
+        ({"max_candidates": 0}, r"GraspRequest\.max_candidates"),
+        ({"max_candidates": 101}, r"GraspRequest\.max_candidates"),
+        ({"kinds": ()}, r"GraspRequest\.kinds"),
+        ({"kinds": ("corner", "corner")}, r"GraspRequest\.kinds"),
+        ({"kinds": ("middle",)}, r"GraspRequest\.kinds"),
+        ({"kinds": "corner"}, r"GraspRequest\.kinds: .*string"),
+        ({"estimate": "mesh"}, r"GraspRequest\.estimate"),
+    ],
+)
+def test_grasp_request_rejects(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        m.GraspRequest(**kwargs)
+
+
+def test_grasp_plan_reply_orders_best_first():
+    ex = example_messages()[m.GraspPlanReply]
+    assert [c.score for c in ex.candidates] == [0.8, 0.5]
+    assert m.GraspPlanReply().candidates == ()
+    with pytest.raises(ValueError, match=r"GraspPlanReply\.candidates: expected best first"):
+        m.GraspPlanReply(candidates=ex.candidates[::-1])
+    with pytest.raises(ValueError, match=r"GraspPlanReply\.candidates\[0\]: expected GraspPlan"):
+        m.GraspPlanReply(candidates=("corner",))
+
+
+def test_initialise_request_mask():
+    assert m.InitialiseRequest().mask is None
+    mask = m.InitialiseRequest(mask=np.eye(3, dtype=bool)).mask
+    assert mask.dtype == np.uint8 and mask.shape == (3, 3)
+    with pytest.raises(ValueError, match=r"InitialiseRequest\.mask: no non-zero pixel"):
+        m.InitialiseRequest(mask=np.zeros((4, 5), np.uint8))
+    with pytest.raises(ValueError, match=r"InitialiseRequest\.mask: expected shape \(N, N\), got \(4,\)"):
+        m.InitialiseRequest(mask=np.ones(4, np.uint8))
+    with pytest.raises(ValueError, match=r"InitialiseRequest\.mask: expected dtype uint8"):
+        m.InitialiseRequest(mask=np.ones((2, 2), np.float32))
+
+
+def test_parameters_keep_their_types():
+    p = m.SetParametersRequest(parameters={"a": np.float32(0.5), "b": np.int64(3), "c": np.bool_(True), "d": "sift"}).parameters
+    assert p == {"a": 0.5, "b": 3, "c": True, "d": "sift"}
+    assert [type(v) for v in p.values()] == [float, int, bool, str]
+
+
+@pytest.mark.parametrize(
+    "params, match",
+    [
+        ({}, "at least one parameter"),
+        ({"": 1.0}, "non-empty strings"),
+        ({3: 1.0}, "non-empty strings"),
+        ({"a": math.nan}, r"\['a'\]: expected a finite number"),
+        ({"a": [1, 2]}, r"\['a'\]: expected bool, int, float or str, got list"),
+        ([("a", 1)], "expected a dict"),
+    ],
+)
+def test_set_parameters_rejects(params, match):
+    with pytest.raises(ValueError, match=match):
+        m.SetParametersRequest(parameters=params)
+
+
+def test_status_reply():
+    assert m.StatusReply().state == "idle"
+    assert m.StatusReply(parameters={}).parameters == {}
+    with pytest.raises(ValueError, match=r"StatusReply\.state: expected one of"):
+        m.StatusReply(state="running")
+    with pytest.raises(ValueError, match=r"StatusReply\.frames_processed"):
+        m.StatusReply(frames_processed=-1)
+    with pytest.raises(ValueError, match=r"StatusReply\.message: expected a single-line"):
+        m.StatusReply(message="two\nlines")
+
+
+def test_error_reply():
+    e = m.ErrorReply("not_ready", "no estimate yet", request_id=4)
+    assert (e.code, e.message, e.request_id) == ("not_ready", "no estimate yet", 4)
+    with pytest.raises(ValueError, match=r"ErrorReply\.code"):
+        m.ErrorReply("oops", "x")
+    with pytest.raises(ValueError, match=r"ErrorReply\.message"):
+        m.ErrorReply("internal", "")
+    with pytest.raises(ValueError, match=r"ErrorReply\.message"):
+        m.ErrorReply("internal", "a\nb")
+
+
+def test_heartbeat():
+    h = m.Heartbeat("frames", seq=2, timestamp_s=1, period_s=0.5)
+    assert (h.seq, h.timestamp_s, h.period_s) == (2, 1.0, 0.5)
+    for kwargs, match in [
+        ({"source": ""}, r"Heartbeat\.source"),
+        ({"source": "x", "seq": -1}, r"Heartbeat\.seq"),
+        ({"source": "x", "timestamp_s": math.inf}, r"Heartbeat\.timestamp_s"),
+        ({"source": "x", "period_s": 0}, r"Heartbeat\.period_s"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            m.Heartbeat(**kwargs)
+
+
+@pytest.mark.parametrize("cls", [m.ResetRequest, m.StatusRequest])
+def test_plain_requests(cls):
+    assert cls(request_id=5).request_id == 5
+    with pytest.raises(ValueError, match=rf"{cls.__name__}\.request_id"):
+        cls(request_id=-2)

@@ -1,0 +1,214 @@
+"""MeshTracker on rendered textured sheets whose true shape is known."""
+
+import numpy as np
+import pytest
+
+from ipc.messages import CameraInfo, RGBDFrame
+from perception import MeshTracker, TrackerConfig, TrackingError, rectangle_mesh
+from perception.solver import SemiImplicitSolver
+from tests.render import bent_points, frame_of, grid_surface, plane_points, texture
+
+CAM = CameraInfo.from_fov(640, 480, np.deg2rad(45))
+SIZE = (0.6, 0.45)
+CENTRE = np.array([0.0, 0.0, 1.3])
+UV, FACES = grid_surface(*SIZE, 31, 24)
+
+
+@pytest.fixture(scope="module")
+def tex():
+    return texture(np.random.default_rng(7))
+
+
+def render(points, tex, k, textured=True, noise_m=0.002):
+    t = tex if textured else texture(np.random.default_rng(0), textured=False)
+    return frame_of(points, UV, FACES, t, CAM, SIZE, t=k / 30, seq=k, noise_m=noise_m, rng=np.random.default_rng(100 + k))
+
+
+def material_of(vertices_cam):
+    """Material coordinates of points on the frame-0 sheet (fronto-parallel at CENTRE)."""
+    return vertices_cam[:, :2] - CENTRE[:2] + np.array(SIZE) / 2
+
+
+def run(frames, config, mask=None):
+    tr = MeshTracker(config)
+    out = [tr.initialise(frames[0], mask=mask)]
+    out += [tr.track(f) for f in frames[1:]]
+    return out
+
+
+def test_rigid_translation_recovered(tex):
+    shifts = [np.array([0.012 * k, -0.006 * k, 0.015 * k]) for k in range(9)]
+    frames = [render(plane_points(UV, CENTRE + s, SIZE), tex, k) for k, s in enumerate(shifts)]
+    est = run(frames, TrackerConfig(features="sift"))
+    V0 = est[0].vertices
+    assert np.abs(V0[:, 2] - CENTRE[2]).mean() < 0.002  # laid on the sheet
+    for e, s in zip(est[1:], shifts[1:]):
+        err = np.linalg.norm(e.vertices - (V0 + s), axis=1)
+        assert err.mean() < 0.003, f"frame {e.seq}: mean error {err.mean() * 1000:.1f} mm"
+        assert not e.lost and e.confidence > 0.9
+
+
+def bend_sequence(tex, textured=True, n=9):
+    radii = [np.inf] + [2.4 / k for k in range(1, n)]  # flat to a 30 cm-radius bend (edges turned 57 deg)
+
+    def points(k):
+        if k == 0:
+            return plane_points(UV, CENTRE, SIZE)
+        return bent_points(UV, CENTRE, SIZE, radii[k])
+
+    frames = [render(points(k), tex, k, textured) for k in range(n)]
+    return frames, radii
+
+
+def bend_errors(est, radii):
+    m0 = material_of(est[0].vertices)
+    errs = []
+    for k, e in enumerate(est[1:], 1):
+        truth = bent_points(m0, CENTRE, SIZE, radii[k])
+        errs.append(np.linalg.norm(e.vertices - truth, axis=1))
+    return np.array(errs)
+
+
+def test_smooth_bend_recovered(tex):
+    frames, radii = bend_sequence(tex)
+    est = run(frames, TrackerConfig(features="sift"))
+    err = bend_errors(est, radii)
+    assert err.mean(axis=1).max() < 0.006, err.mean(axis=1)
+    assert np.percentile(err, 95) < 0.015
+
+
+def test_textureless_sheet_tracked_without_correspondences(tex):
+    shifts = [np.array([0.01 * k, 0.0, 0.02 * k]) for k in range(7)]
+    frames = [render(plane_points(UV, CENTRE + s, SIZE), tex, k, textured=False) for k, s in enumerate(shifts)]
+    tr = MeshTracker(TrackerConfig(features="sift"))
+    e0 = tr.initialise(frames[0])
+    assert tr._corr.n_model == 0  # nothing to match on a plain colour
+    for f, s in zip(frames[1:], shifts[1:]):
+        e = tr.track(f)
+        assert "correspondence" not in e.energies
+        err = np.linalg.norm(e.vertices - (e0.vertices + s), axis=1)
+        assert err.mean() < 0.01, f"frame {f.seq}: {err.mean() * 1000:.1f} mm"
+
+
+def test_depth_and_boundary_terms_matter_without_texture(tex):
+    """Ablation: with the depth and boundary terms off, a textureless sheet cannot follow a move."""
+    shifts = [np.array([0.015 * k, 0.0, 0.03 * k]) for k in range(5)]
+    frames = [render(plane_points(UV, CENTRE + s, SIZE), tex, k, textured=False) for k, s in enumerate(shifts)]
+    full = run(frames, TrackerConfig(features="sift"))
+    bare = run(frames, TrackerConfig(features="sift", use_depth=False, use_boundary=False))
+    err_full = np.linalg.norm(full[-1].vertices - (full[0].vertices + shifts[-1]), axis=1).mean()
+    err_bare = np.linalg.norm(bare[-1].vertices - (bare[0].vertices + shifts[-1]), axis=1).mean()
+    assert err_bare > 0.05 > 5 * err_full
+
+
+@pytest.mark.parametrize("features", ["orb", "klt"])
+def test_other_feature_kinds_track_a_bend(tex, features):
+    frames, radii = bend_sequence(tex, n=6)
+    est = run(frames, TrackerConfig(features=features))
+    assert bend_errors(est, radii).mean(axis=1).max() < 0.008
+
+
+def test_wrong_matches_cannot_tear_the_mesh(tex, monkeypatch):
+    """A third of the matches sent to random places: the inlier radius rejects them."""
+    shifts = [np.array([0.01 * k, 0.005 * k, 0.0]) for k in range(6)]
+    frames = [render(plane_points(UV, CENTRE + s, SIZE), tex, k) for k, s in enumerate(shifts)]
+    tr = MeshTracker(TrackerConfig(features="sift", use_boundary=False))
+    e0 = tr.initialise(frames[0])
+    rng = np.random.default_rng(0)
+    real_match = tr._corr.match
+
+    def corrupted(*a, **kw):
+        fid, bary, xy = real_match(*a, **kw)
+        bad = rng.random(len(xy)) < 0.33
+        xy = xy.copy()
+        xy[bad] += rng.uniform(-60, 60, (int(bad.sum()), 2))
+        return fid, bary, xy
+
+    monkeypatch.setattr(tr._corr, "match", corrupted)
+    for f, s in zip(frames[1:], shifts[1:]):
+        e = tr.track(f)
+        err = np.linalg.norm(e.vertices - (e0.vertices + s), axis=1)
+        assert err.max() < 0.015 and err.mean() < 0.004, f"frame {f.seq}: {err.mean() * 1000:.1f} mm"
+        assert e.energies["inliers"] < 0.8 * len(xy_of(tr))
+
+
+def xy_of(tr):
+    return tr._corr.first.keypoints.xy if tr._corr.first is not None else []
+
+
+@pytest.mark.parametrize("method", ["conjugate", "semi-implicit"])
+def test_energy_non_increasing_over_iterations(tex, method):
+    frames, _ = bend_sequence(tex, n=4)
+    tr = MeshTracker(TrackerConfig(features="sift"))
+    tr.initialise(frames[0])
+    tr.track(frames[1])
+    # one frame's minimisation, every term on, from a perturbed mesh
+    obs = tr.last_observation
+    terms = tr._data_terms(obs, None)
+    solver = SemiImplicitSolver(tr.mesh.stiffness(), 0.05, method)  # small alpha: long, bold steps
+    V0 = tr.vertices + np.random.default_rng(1).normal(0, 0.01, tr.vertices.shape)
+    res = solver.minimise(V0, terms, max_iterations=40, tolerance_m=1e-7)
+    h = np.array(res.history)
+    assert len(h) > 5
+    assert np.all(np.diff(h) <= 1e-12), h
+    assert h[-1] < 0.5 * h[0]
+
+
+def test_offline_mesh_of_known_size(tex):
+    frames = [render(plane_points(UV, CENTRE, SIZE), tex, 0)]
+    tr = MeshTracker(TrackerConfig())
+    mesh = rectangle_mesh(0.6, 0.45, 0.03)
+    e = tr.initialise(frames[0], mesh=mesh)
+    assert e.vertices.shape == (mesh.n_vertices, 3)
+    # centred on the sheet and lying on it
+    assert np.abs(e.vertices[:, :2].mean(axis=0) - CENTRE[:2]).max() < 0.02
+    assert np.abs(e.vertices[:, 2] - CENTRE[2]).mean() < 0.005
+
+
+def test_estimate_contents(tex):
+    frames = [render(plane_points(UV, CENTRE, SIZE), tex, 0)]
+    e = MeshTracker(TrackerConfig()).initialise(frames[0])
+    n = len(e.vertices)
+    assert e.faces.shape[1] == 3 and e.faces.max() < n and e.canonical.shape == (n, 3)
+    # faces counter-clockwise as seen from the camera: normals point toward it (-z here)
+    a, b, c = (e.vertices[e.faces[:, i]] for i in range(3))
+    assert np.all(np.cross(b - a, c - a)[:, 2] < 0)
+    assert set(e.energies) >= {"smoothness", "depth", "boundary", "total"}
+    assert 0.0 <= e.confidence <= 1.0 and e.timing_ms > 0
+
+
+def test_lost_when_object_disappears(tex):
+    f0 = render(plane_points(UV, CENTRE, SIZE), tex, 0)
+    tr = MeshTracker(TrackerConfig())
+    tr.initialise(f0)
+    empty = RGBDFrame(f0.rgb, np.zeros_like(f0.depth_m), CAM, 0.1, 1)
+    e = tr.track(empty)
+    assert e.lost and e.confidence == 0.0
+
+
+def test_bad_input_messages(tex):
+    f0 = render(plane_points(UV, CENTRE, SIZE), tex, 0)
+    tr = MeshTracker(TrackerConfig())
+    with pytest.raises(TrackingError, match="before initialise"):
+        tr.track(f0)
+    with pytest.raises(TrackingError, match="mask is empty"):
+        tr.initialise(f0, mask=np.zeros((480, 640), bool))
+    with pytest.raises(TrackingError, match=r"mask: expected shape \(480, 640\)"):
+        tr.initialise(f0, mask=np.ones((10, 10), bool))
+    no_depth = RGBDFrame(f0.rgb, np.zeros_like(f0.depth_m), CAM)
+    with pytest.raises(TrackingError, match="no object found"):
+        tr.initialise(no_depth)
+    nan_depth = RGBDFrame(f0.rgb, np.full_like(f0.depth_m, np.nan), CAM)
+    with pytest.raises(TrackingError, match="pixels with depth"):
+        tr.initialise(nan_depth, mask=np.ones((480, 640), bool))
+    tr.initialise(f0)
+    small = CameraInfo.from_fov(320, 240, np.deg2rad(45))
+    other = RGBDFrame(np.zeros((240, 320, 3), np.uint8), np.ones((240, 320), np.float32), small)
+    with pytest.raises(TrackingError, match="frame camera changed"):
+        tr.track(other)
+    with pytest.raises(TrackingError, match="expected an RGBDFrame"):
+        tr.track("not a frame")
+    with pytest.raises(ValueError, match="alpha"):
+        TrackerConfig(alpha=0)
+    with pytest.raises(ValueError, match="features"):
+        TrackerConfig(features="harris")
