@@ -8,9 +8,11 @@ every tracked frame.
 
 The tracker's canonical mesh is a hexagonal grid of equilateral triangles laid over
 the cloth, so its outline follows the real outline but is ragged at the scale of
-one grid spacing (steps of 60 degrees between neighbouring boundary vertices). The
-turn of the outline is therefore measured over chords that span a few spacings on
-each side of a vertex, not from the two adjacent vertices.
+one grid spacing (steps of 60 degrees between neighbouring boundary vertices, and
+notches of single missing triangles). The turn of the outline is therefore measured
+on the smoothed outline: between the vertex and two chord ends a few spacings
+behind and ahead, each end the mean of the outline over a stretch of arc length
+that spans whole periods of the grid's zigzag.
 """
 
 from __future__ import annotations
@@ -20,15 +22,24 @@ from collections import defaultdict
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import coo_matrix, csr_matrix, vstack
 
 from grasping._checks import check_ids, check_points
 
 log = logging.getLogger(__name__)
 
-#: Default largest interior angle of the outline, radians, that still counts as a corner.
-DEFAULT_CORNER_MAX_ANGLE_RAD = float(np.deg2rad(130.0))
-#: Default half-length of the chords that measure the outline's turn, in grid spacings.
-DEFAULT_WINDOW_SPACINGS = 3.0
+#: Default largest interior angle of the outline, radians, that still counts as a
+#: corner. Over grid phases and rotations of a T-shirt outline, a 106 degree corner
+#: measures at most about 122 degrees and a 163 degree bend at least about 147.
+DEFAULT_CORNER_MAX_ANGLE_RAD = float(np.deg2rad(135.0))
+#: Default chord half-length L, in grid spacings: chord ends are the mean of the
+#: outline between L / 2 and 3 L / 2 of arc length behind and ahead of a vertex.
+DEFAULT_WINDOW_SPACINGS = 4.0
+# Fraction of L over which each chord end is averaged, on either side of L.
+_END_HALF_WIDTH = 0.5
+# Half-width, in grid spacings, of the arc averaged for the vertex itself: one
+# spacing on each side covers the zigzag of two boundary edges.
+_APEX_HALF_WIDTH_SPACINGS = 1.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,13 +58,12 @@ class Outline:
     arclength_m : (R,) float64, metres, position of the row along its loop, from
         the loop's first row, measured on the canonical mesh
     perimeters_m : (L,) float64, metres, length of each loop
-    chord_ids : (R, 2, 2) int64, ``[row, side, end]``: the outline edge holding the
-        chord end ``window_m`` behind (side 0) or ahead of (side 1) the row
-    chord_fracs : (R, 2) float64 in [0, 1), position of each chord end along its
-        edge, so a chord end is ``(1 - f) * X[ids[0]] + f * X[ids[1]]`` for any
-        vertex positions ``X`` of the mesh (canonical or tracked)
+    behind, ahead : (R, N) sparse float64, rows summing to 1: the chord end behind
+        (ahead of) each row is ``behind @ X`` (``ahead @ X``) for vertex positions
+        ``X`` (N, D) of the mesh, canonical or tracked. Being affine combinations
+        of vertices, the chord ends move exactly with any rigid motion.
     interior_angle_rad : (R,) float64 in (0, 2 pi), radians, interior angle of the
-        outline at each row measured between its two chords; below pi is convex
+        smoothed outline at each row, between its two chords; below pi is convex
     spacing_m : float, metres, median edge length of the canonical mesh
     window_m : float, metres, chord half-length before clamping to small loops
     corner_rows : (C,) int64, rows of the corners, in outline order
@@ -63,8 +73,8 @@ class Outline:
     loop_ids: np.ndarray
     arclength_m: np.ndarray
     perimeters_m: np.ndarray
-    chord_ids: np.ndarray
-    chord_fracs: np.ndarray
+    behind: csr_matrix
+    ahead: csr_matrix
     interior_angle_rad: np.ndarray
     spacing_m: float
     window_m: float
@@ -89,10 +99,7 @@ class Outline:
         behind, ahead : (K, D) float64 each, the chord ends behind and ahead of each
             row along the outline
         """
-        ids = self.chord_ids[rows]
-        f = self.chord_fracs[rows][..., None]
-        ends = (1.0 - f) * points[ids[..., 0]] + f * points[ids[..., 1]]
-        return ends[:, 0], ends[:, 1]
+        return self.behind[rows] @ points, self.ahead[rows] @ points
 
     def sample_rows(self, spacing_m: float) -> np.ndarray:
         """Rows evenly spaced along each loop, about ``spacing_m`` apart.
@@ -210,36 +217,42 @@ def _trace_loops(half_edges: np.ndarray, pts: np.ndarray) -> list[np.ndarray]:
     return loops
 
 
-def _chord_ends(loop_pts: np.ndarray, window: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Where the chords of half-length ``window`` (arc length) end on a closed loop.
+def _arc_means(loop: np.ndarray, loop_pts: np.ndarray, n: int, centres: np.ndarray, half_width: float, step: float) -> csr_matrix:
+    """Weights that average a closed loop over arc-length intervals.
 
     Parameters
     ----------
-    loop_pts : (n, 2) float64, ordered loop positions, metres
-    window : float, metres of arc length on each side
+    loop : (n_loop,) int64 vertex ids of the loop, in order
+    loop_pts : (n_loop, 2) float64, their canonical positions, metres
+    n : number of mesh vertices
+    centres : (K,) float64, metres of arc length from the loop's first vertex
+    half_width : float >= 0, metres: interval ``[c - half_width, c + half_width]``
+    step : float > 0, metres between quadrature samples in the interval
 
     Returns
     -------
-    arclength : (n,) float64, arc position of each loop vertex
-    edge : (n, 2) int64, loop index of the edge's start holding the chord end behind / ahead
-    frac : (n, 2) float64, position along that edge in [0, 1)
+    (K, n) sparse float64, rows summing to 1: row k averages the outline over
+    interval k as an affine combination of loop vertices
     """
     seg = np.linalg.norm(np.roll(loop_pts, -1, axis=0) - loop_pts, axis=1)
     cum = np.concatenate([[0.0], np.cumsum(seg)])
-    perimeter = cum[-1]
-    arclength = cum[:-1]
-    targets = np.mod(arclength[:, None] + np.array([-window, window])[None, :], perimeter)
-    edge = np.clip(np.searchsorted(cum, targets, side="right") - 1, 0, len(seg) - 1)
-    frac = np.clip((targets - cum[edge]) / np.maximum(seg[edge], 1e-300), 0.0, 1.0 - 1e-12)
-    return arclength, edge, frac
+    count = 2 * int(np.ceil(half_width / step)) + 1
+    t = np.mod(centres[:, None] + np.linspace(-half_width, half_width, count)[None, :], cum[-1])
+    edge = np.clip(np.searchsorted(cum, t, side="right") - 1, 0, len(loop) - 1)
+    frac = (t - cum[edge]) / np.maximum(seg[edge], 1e-300)
+    rows = np.repeat(np.arange(len(centres)), 2 * count)
+    cols = np.stack([loop[edge], loop[(edge + 1) % len(loop)]], axis=-1).ravel()
+    weights = np.stack([1.0 - frac, frac], axis=-1).ravel() / count
+    # COO -> CSR sums the weights of samples that share a vertex.
+    return coo_matrix((weights, (rows, cols)), shape=(len(centres), n)).tocsr()
 
 
 def _suppress(angle: np.ndarray, arclength: np.ndarray, perimeter: float, radius: float, max_angle: float) -> np.ndarray:
     """Rows of one loop that are corners: sharp, and the sharpest within ``radius``.
 
-    Greedy non-maximum suppression on sharpness: a hex-grid corner spreads a dip
-    in the interior angle over about a chord length of outline, of which only the
-    deepest vertex is the corner.
+    Greedy non-maximum suppression on sharpness: the smoothed outline spreads a
+    corner's dip in the interior angle over about L of outline on each side, of
+    which only the deepest vertex is the corner.
     """
     keep = []
     for i in np.argsort(angle, kind="stable"):
@@ -308,18 +321,24 @@ def build_outline(
     in_boundary = np.zeros(n, bool)
     in_boundary[boundary] = True
 
-    ids, loop_ids, arcs, chord_ids, chord_fracs, angles, corners, perimeters = [], [], [], [], [], [], [], []
+    ids, loop_ids, arcs, behind, ahead, angles, corners, perimeters = [], [], [], [], [], [], [], []
     row0 = 0
     for k, loop in enumerate(loops):
         loop_pts = pts[loop]
-        perimeter = float(np.sum(np.linalg.norm(np.roll(loop_pts, -1, axis=0) - loop_pts, axis=1)))
-        # On a loop shorter than eight windows the chords of a mid-edge vertex would
-        # reach round the neighbouring corners and make it look like a corner too.
-        loop_window = min(window, perimeter / 8.0)
-        arc, edge, frac = _chord_ends(loop_pts, loop_window)
-        ends = (1.0 - frac[..., None]) * loop_pts[edge] + frac[..., None] * loop_pts[(edge + 1) % len(loop)]
-        into = loop_pts - ends[:, 0]
-        out = ends[:, 1] - loop_pts
+        seg = np.linalg.norm(np.roll(loop_pts, -1, axis=0) - loop_pts, axis=1)
+        perimeter = float(seg.sum())
+        arc = np.concatenate([[0.0], np.cumsum(seg)[:-1]])
+        # Chord ends reach 1.5 L along the outline; on a loop shorter than twelve
+        # L those of a mid-edge vertex would wrap round the neighbouring corners
+        # and make it look like a corner too.
+        loop_window = min(window, perimeter / 12.0)
+        step = 0.25 * spacing  # quadrature samples: several per boundary edge
+        end_width = _END_HALF_WIDTH * loop_window
+        loop_behind = _arc_means(loop, loop_pts, n, arc - loop_window, end_width, step)
+        loop_ahead = _arc_means(loop, loop_pts, n, arc + loop_window, end_width, step)
+        apex = _arc_means(loop, loop_pts, n, arc, _APEX_HALF_WIDTH_SPACINGS * spacing, step) @ pts
+        into = apex - loop_behind @ pts
+        out = loop_ahead @ pts - apex
         turn = np.arctan2(into[:, 0] * out[:, 1] - into[:, 1] * out[:, 0], np.sum(into * out, axis=1))
         angle = np.pi - turn
         # Corners are boundary vertices by contract: only the caller's ids qualify.
@@ -328,8 +347,8 @@ def build_outline(
         ids.append(loop)
         loop_ids.append(np.full(len(loop), k, np.int64))
         arcs.append(arc)
-        chord_ids.append(np.stack([loop[edge], loop[(edge + 1) % len(loop)]], axis=-1))
-        chord_fracs.append(frac)
+        behind.append(loop_behind)
+        ahead.append(loop_ahead)
         angles.append(angle)
         perimeters.append(perimeter)
         row0 += len(loop)
@@ -343,8 +362,8 @@ def build_outline(
         loop_ids=np.concatenate(loop_ids),
         arclength_m=np.concatenate(arcs),
         perimeters_m=np.asarray(perimeters),
-        chord_ids=np.concatenate(chord_ids),
-        chord_fracs=np.concatenate(chord_fracs),
+        behind=vstack(behind, format="csr"),
+        ahead=vstack(ahead, format="csr"),
         interior_angle_rad=np.concatenate(angles),
         spacing_m=spacing,
         window_m=window,
@@ -367,11 +386,15 @@ def find_corners(
     """Corner vertices of a cloth from the geometry of its canonical mesh.
 
     A corner is a boundary vertex where the outer outline turns sharply: its
-    interior angle, measured between chords reaching ``window_spacings`` grid
-    spacings along the outline on each side (which smooths the hex grid's ragged
-    outline), is below ``max_angle_rad``, and it is the sharpest vertex within one
-    chord length along the outline (one physical corner gives one vertex). Concave
-    turns (armpits, notches) and the rims of holes are never corners.
+    interior angle on the smoothed outline is below ``max_angle_rad``, and it is
+    the sharpest vertex within L of outline on either side (one physical corner
+    gives one vertex). The angle is taken at the vertex (the outline averaged over
+    one grid spacing on each side) between chord ends L = ``window_spacings``
+    spacings behind and ahead (the outline averaged from L / 2 to 3 L / 2 away),
+    which evens out the hex grid's ragged outline. Concave turns (armpits,
+    notches) and the rims of holes are never corners. Features shorter than about
+    1.5 L (a sleeve end 5 spacings wide with L = 4) are not resolved: build the
+    canonical mesh finer, or lower ``window_spacings``.
 
     Parameters
     ----------
@@ -380,9 +403,9 @@ def find_corners(
     boundary : (B,) int vertex ids with fewer than six neighbours
         (``MeshEstimate.boundary``), B >= 1. The outline's order comes from the
         faces (edges used by one face); corners are restricted to these ids.
-    max_angle_rad : float in (0, pi), radians, default 130 degrees
-    window_spacings : float > 0, chord half-length in grid spacings (median edge
-        length of the canonical mesh), default 3
+    max_angle_rad : float in (0, pi), radians, default 135 degrees
+    window_spacings : float > 0, chord half-length L in grid spacings (median edge
+        length of the canonical mesh), default 4
 
     Returns
     -------

@@ -302,7 +302,7 @@ def _candidates(
 
     if config.mode == "highest":
         height = V @ config.up_cam
-        choices = np.flatnonzero(reachable_vertex & has_normal)
+        choices = np.flatnonzero(reachable_vertex)
         if choices.size == 0:
             return "no vertex inside the workspace"
         vid = choices[np.argmax(height[choices])][None]
@@ -310,7 +310,7 @@ def _candidates(
         # Any closing direction across the approach works for a point on the
         # surface; take the camera's x axis (y if nearly parallel) to be repeatable.
         ref = np.where(np.abs(approach[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-        return _Candidates(vid, V[vid], approach, ref, np.ones(1, bool))
+        return _Candidates(vid, V[vid], approach, ref, has_normal[vid])
 
     outline = model.outline
     if outline is None:

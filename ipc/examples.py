@@ -121,7 +121,13 @@ _FORMATS = {
 
 def _format_name(first: int) -> str:
     """The msgpack format family of an item from its first byte (msgpack spec names)."""
-    for lo, hi, name in ((0x00, 0x7F, "positive fixint"), (0x80, 0x8F, "fixmap"), (0x90, 0x9F, "fixarray"), (0xA0, 0xBF, "fixstr"), (0xE0, 0xFF, "negative fixint")):
+    for lo, hi, name in (
+        (0x00, 0x7F, "positive fixint"),
+        (0x80, 0x8F, "fixmap"),
+        (0x90, 0x9F, "fixarray"),
+        (0xA0, 0xBF, "fixstr"),
+        (0xE0, 0xFF, "negative fixint"),
+    ):
         if lo <= first <= hi:
             return name
     return _FORMATS[first]

@@ -39,9 +39,9 @@ import logging
 import math
 import threading
 import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Mapping
 
 import zmq
 import zmq.auth
@@ -97,7 +97,8 @@ class RemoteError(RuntimeError):
 
 def _check_key(name: str, key: bytes) -> bytes:
     if not isinstance(key, bytes) or len(key) != 40:
-        raise ValueError(f"{name}: expected a 40-byte Z85 CURVE key, got {type(key).__name__} of length {len(key) if hasattr(key, '__len__') else '?'}")
+        got = f"{len(key)} bytes" if isinstance(key, bytes) else type(key).__name__  # never the key: it may be secret
+        raise ValueError(f"{name}: expected a 40-byte Z85 CURVE key, got {got}")
     return key
 
 
@@ -124,7 +125,7 @@ class CurveServer:
         object.__setattr__(self, "authorized_clients", clients)
 
     @classmethod
-    def from_files(cls, secret_key_file: str | Path, authorized_clients_dir: str | Path) -> "CurveServer":
+    def from_files(cls, secret_key_file: str | Path, authorized_clients_dir: str | Path) -> CurveServer:
         """Load the server's ``.key_secret`` cert and every ``.key`` cert in a directory."""
         public, secret = zmq.auth.load_certificate(secret_key_file)
         if secret is None:
@@ -146,7 +147,7 @@ class CurveClient:
         _check_key("CurveClient.server_public_key", self.server_public_key)
 
     @classmethod
-    def from_files(cls, secret_key_file: str | Path, server_public_key_file: str | Path) -> "CurveClient":
+    def from_files(cls, secret_key_file: str | Path, server_public_key_file: str | Path) -> CurveClient:
         """Load the client's ``.key_secret`` cert and the server's public ``.key`` cert."""
         public, secret = zmq.auth.load_certificate(secret_key_file)
         if secret is None:
@@ -308,7 +309,7 @@ class Publisher:
         with self._lock:
             self._socket.close()
 
-    def __enter__(self) -> "Publisher":
+    def __enter__(self) -> Publisher:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -322,7 +323,8 @@ class Subscriber:
     accept : message classes to keep, e.g. ``(RGBDFrame,)``; others are dropped. None
         keeps every type. Heartbeats are always consumed here, never returned.
     stale_after_s : seconds without any message (data or heartbeat) after which the
-        publisher counts as gone: logged as a warning and ``on_liveness(False, age_s)``
+        publisher counts as gone (three heartbeat periods instead, if its heartbeats
+        announce a longer period): logged as a warning and ``on_liveness(False, age_s)``
         is called; when messages flow again, logged and ``on_liveness(True, gap_s)``.
         ``on_liveness`` runs on the receiver thread: keep it short.
     hwm, limits, curve : queue size, decoder caps, CurveClient or None
@@ -395,8 +397,15 @@ class Subscriber:
         return math.inf if last is None else time.monotonic() - last
 
     @property
+    def stale_limit_s(self) -> float:
+        """Silence after which the publisher counts as gone: ``stale_after_s``, or three
+        heartbeat periods if the publisher announced a longer period."""
+        beat = self._last_heartbeat
+        return self.stale_after_s if beat is None else max(self.stale_after_s, 3.0 * beat.period_s)
+
+    @property
     def stale(self) -> bool:
-        """True while the publisher counts as gone (no message for ``stale_after_s``)."""
+        """True while the publisher counts as gone (no message for ``stale_limit_s``)."""
         return self._stale
 
     @property
@@ -412,7 +421,7 @@ class Subscriber:
         self._thread.join()
         self._socket.close()
 
-    def __enter__(self) -> "Subscriber":
+    def __enter__(self) -> Subscriber:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -471,7 +480,7 @@ class Subscriber:
 
     def _check_stale(self) -> None:
         age = time.monotonic() - (self._last_rx if self._last_rx is not None else self._start)
-        if not self._stale and age > self.stale_after_s:
+        if not self._stale and age > self.stale_limit_s:
             self._stale = True
             name = f" {self._last_heartbeat.source!r}" if self._last_heartbeat else ""
             log.warning("%s: no message from publisher%s for %.1f s; gone?", self.endpoint, name, age)
@@ -548,7 +557,9 @@ class RequestClient:
                     return reply
             except zmq.Again:
                 pass  # could not even queue the request: same as no reply
-            log.warning("%s: no reply to %s within %d ms (attempt %d of %d)", self.endpoint, type(msg).__name__, timeout_ms, attempt, self.attempts)
+            log.warning(
+                "%s: no reply to %s within %d ms (attempt %d of %d)", self.endpoint, type(msg).__name__, timeout_ms, attempt, self.attempts
+            )
             self._socket.close()
             self._socket = None
         raise RequestTimeout(f"{self.endpoint}: no reply to {type(msg).__name__} after {self.attempts} attempts of {timeout_ms} ms")
@@ -558,7 +569,7 @@ class RequestClient:
             self._socket.close()
             self._socket = None
 
-    def __enter__(self) -> "RequestClient":
+    def __enter__(self) -> RequestClient:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -642,7 +653,7 @@ class ReplyServer:
     def close(self) -> None:
         self._socket.close()
 
-    def __enter__(self) -> "ReplyServer":
+    def __enter__(self) -> ReplyServer:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from scipy.spatial import cKDTree
 
 from perception.camera import project
 from perception.raster import locate_pixels
@@ -103,21 +104,16 @@ class Detector:
         return Keypoints(xy, desc if self.binary else desc.astype(np.float32), self.binary)
 
 
-def descriptor_distances(a: np.ndarray, b: np.ndarray, binary: bool) -> np.ndarray:
-    """(P, Q) float32 distances: Hamming for binary descriptors, Euclidean otherwise."""
-    if len(a) == 0 or len(b) == 0:
-        return np.zeros((len(a), len(b)), np.float32)
+def pair_distances(a: np.ndarray, b: np.ndarray, binary: bool) -> np.ndarray:
+    """(K,) float32 distances between descriptor rows a[k] and b[k]: Hamming for binary, else Euclidean."""
     if binary:
-        x = np.unpackbits(a, axis=1).astype(np.float32)
-        y = np.unpackbits(b, axis=1).astype(np.float32)
-        return (x @ (1 - y).T + (1 - x) @ y.T).astype(np.float32)
-    aa = np.einsum("ij,ij->i", a, a)[:, None]
-    bb = np.einsum("ij,ij->i", b, b)[None, :]
-    return np.sqrt(np.maximum(aa + bb - 2.0 * (a @ b.T), 0.0)).astype(np.float32)
+        return np.unpackbits(np.bitwise_xor(a, b), axis=1).sum(axis=1).astype(np.float32)
+    d = a - b
+    return np.sqrt(np.einsum("ij,ij->i", d, d))
 
 
 def match_gated(model: Keypoints, predicted_xy: np.ndarray, current: Keypoints, gate_px: float,
-                keep_fraction: float = 0.5):
+                keep_fraction: float = 0.5, max_candidates: int = 32):
     """The paper's putative matching.
 
     For each model feature, the nearest current descriptor among current features lying
@@ -127,18 +123,29 @@ def match_gated(model: Keypoints, predicted_xy: np.ndarray, current: Keypoints, 
     predicted_xy : (P, 2) float predicted pixel of each model feature (NaN: not predicted)
     returns (model_idx (K,), current_idx (K,)) int arrays
     """
-    if len(model) == 0 or len(current) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    dist = descriptor_distances(model.desc, current.desc, model.binary)
-    gap = np.linalg.norm(predicted_xy[:, None, :] - current.xy[None, :, :], axis=2)
-    dist = np.where(gap <= gate_px, dist, np.inf)  # NaN predictions fail the gate too
-    best = np.argmin(dist, axis=1)
-    best_d = dist[np.arange(len(best)), best]
-    m_idx = np.flatnonzero(np.isfinite(best_d))
-    if len(m_idx) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    c_idx = best[m_idx]
-    d = best_d[m_idx]
+    none = np.zeros(0, np.int64), np.zeros(0, np.int64)
+    ok = np.all(np.isfinite(predicted_xy), axis=1)
+    if len(model) == 0 or len(current) == 0 or not ok.any():
+        return none
+    # Candidate pairs from the spatial gate first (the nearest ``max_candidates`` current
+    # features within the gate): descriptors are compared only there.
+    tree = cKDTree(current.xy)
+    m_ok = np.flatnonzero(ok)
+    k = min(max_candidates, len(current))
+    gap, cand = tree.query(predicted_xy[m_ok], k=k, distance_upper_bound=gate_px)
+    gap, cand = gap.reshape(len(m_ok), k), cand.reshape(len(m_ok), k)
+    inside = np.isfinite(gap)
+    if not inside.any():
+        return none
+    m_pair = np.broadcast_to(m_ok[:, None], cand.shape)[inside]
+    c_pair = cand[inside]
+    d_pair = pair_distances(model.desc[m_pair], current.desc[c_pair], model.binary)
+    # nearest descriptor per model feature
+    order = np.lexsort((d_pair, m_pair))
+    first = np.ones(len(order), bool)
+    first[1:] = m_pair[order][1:] != m_pair[order][:-1]
+    best = order[first]
+    m_idx, c_idx, d = m_pair[best], c_pair[best], d_pair[best]
     # One model feature per current feature: the closest in descriptor space wins.
     order = np.lexsort((d, c_idx))
     first = np.ones(len(order), bool)

@@ -108,11 +108,12 @@ def mesh_from_lattice(lattice: np.ndarray, spacing_m: float) -> CanonicalMesh:
     def ids(offset):
         return np.array([index.get((int(q) + offset[0], int(r) + offset[1]), -1) for q, r in lattice])
 
-    right, up, up_right = ids((1, 0)), ids((0, 1)), ids((1, 1))
+    right, up, up_left = ids((1, 0)), ids((0, 1)), ids((-1, 1))
     here = np.arange(len(lattice))
-    # "up" triangle (q,r) (q+1,r) (q,r+1); "down" triangle (q+1,r) (q+1,r+1) (q,r+1)
+    # Each triangle is listed once, from its lowest corner (q, r): the "up" triangle
+    # (q,r) (q+1,r) (q,r+1) and the "down" triangle (q,r) (q,r+1) (q-1,r+1).
     tri_up = np.column_stack([here, right, up])
-    tri_dn = np.column_stack([right, up_right, up])
+    tri_dn = np.column_stack([here, up, up_left])
     faces = np.concatenate([tri_up, tri_dn])
     faces = faces[np.all(faces >= 0, axis=1)]
     if len(faces) == 0:

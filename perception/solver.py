@@ -127,7 +127,7 @@ class SemiImplicitSolver:
         """Paper eq. 35-37: V_t = (K + alpha I)^{-1} (alpha V - data gradient); returns V_t - V."""
         return -self._precondition(grad)
 
-    def _conjugate_step(self, V, grad, terms, max_cg: int = 25, rtol: float = 1e-3):
+    def _conjugate_step(self, V, grad, terms, max_cg: int = 8, rtol: float = 1e-2):
         """Approximately solve (K + H_data) D = -grad by preconditioned conjugate gradients."""
         hvs = [(w, t.gauss_newton(V)) for w, t in terms]
         damping = 1e-3 * self.alpha  # keeps the model positive definite when data leave a direction free

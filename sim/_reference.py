@@ -41,3 +41,31 @@ def bind_to_surface(points: np.ndarray, vertices: np.ndarray, faces: np.ndarray)
                 best = q
         out.append(best)
     return np.array(out)
+
+
+def rasterise_depth(points_cam: np.ndarray, faces: np.ndarray, K: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(H, W) depth of the nearest triangle whose projection covers each pixel centre, 0 if none.
+
+    Pixel by pixel and triangle by triangle: the pixel centre's barycentric coordinates
+    in the projected triangle decide coverage, and the depth is the z where the pixel's
+    ray meets the triangle's plane.
+    """
+    depth = np.zeros((height, width))
+    pts = np.asarray(points_cam, dtype=np.float64)
+    for tri in np.asarray(faces):
+        p = pts[tri]
+        uv = (p @ np.asarray(K).T)[:, :2] / p[:, 2:]
+        normal = np.cross(p[1] - p[0], p[2] - p[0])
+        M = np.array([uv[1] - uv[0], uv[2] - uv[0]]).T
+        if abs(np.linalg.det(M)) < 1e-12:
+            continue
+        for row in range(max(0, int(np.ceil(uv[:, 1].min()))), min(height - 1, int(np.floor(uv[:, 1].max()))) + 1):
+            for col in range(max(0, int(np.ceil(uv[:, 0].min()))), min(width - 1, int(np.floor(uv[:, 0].max()))) + 1):
+                b1, b2 = np.linalg.solve(M, np.array([col, row]) - uv[0])
+                if min(b1, b2, 1 - b1 - b2) < -1e-9:
+                    continue
+                ray = np.linalg.solve(np.asarray(K, dtype=np.float64), np.array([col, row, 1.0]))
+                z = (normal @ p[0]) / (normal @ ray)
+                if depth[row, col] == 0 or z < depth[row, col]:
+                    depth[row, col] = z
+    return depth

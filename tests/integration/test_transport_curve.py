@@ -75,7 +75,10 @@ def test_plain_client_is_refused(server):
 def test_curve_publisher(keys):
     curve = CurveServer.from_files(keys / "server" / "server.key_secret", keys / "authorized")
     with Publisher(ANY_PORT, source="estimates", heartbeat_period_s=0.05, curve=curve) as pub:
-        with Subscriber(pub.endpoint, curve=client_keys(keys, "client")) as good, Subscriber(pub.endpoint, curve=client_keys(keys, "stranger")) as bad:
+        with (
+            Subscriber(pub.endpoint, curve=client_keys(keys, "client")) as good,
+            Subscriber(pub.endpoint, curve=client_keys(keys, "stranger")) as bad,
+        ):
             deadline = time.monotonic() + 5.0
             while good.last_heartbeat is None and time.monotonic() < deadline:
                 time.sleep(0.02)

@@ -139,3 +139,21 @@ def test_boundary_pulls_outside_vertex_inward():
     assert g[0, 0] > 0  # descent (-g) moves it toward -x, back inside
     e, _ = term.evaluate(V)
     assert e == pytest.approx(0.5 * (0.03 + 0.01) ** 2, rel=1e-3)
+
+
+def test_match_gated_follows_the_papers_rules():
+    from perception.features import Keypoints, match_gated
+
+    rng = np.random.default_rng(0)
+    desc = rng.normal(size=(6, 8)).astype(np.float32)
+    model = Keypoints(np.zeros((6, 2), np.float32), desc, False)
+    pred = np.array([[10, 10], [50, 50], [90, 90], [130, 130], [170, 170], [np.nan, np.nan]], float)
+    # current features: exact copies near each prediction, plus a better descriptor out of the gate
+    cur_xy = pred[:5] + 3.0
+    cur_desc = desc[:5] + rng.normal(0, [[0.01], [0.02], [0.3], [0.4], [0.5]], (5, 8)).astype(np.float32)
+    far = Keypoints(np.array([[10, 200]], np.float32), desc[:1].copy(), False)
+    current = Keypoints(np.concatenate([cur_xy, far.xy]).astype(np.float32), np.concatenate([cur_desc, far.desc]), False)
+    mi, ci = match_gated(model, pred, current, gate_px=20, keep_fraction=0.5)
+    # five gated matches (the NaN prediction and the far copy never match), best half kept: 3
+    assert sorted(mi.tolist()) == [0, 1, 2]
+    np.testing.assert_array_equal(mi, ci)

@@ -180,6 +180,24 @@ def test_find_corners_tshirt():
         assert np.all(dist < 2 * S)
 
 
+def test_find_corners_survives_notches_in_the_outline():
+    # Missing triangles along the outline (a ragged segmentation) must not add or move corners.
+    rectangle_polygon = np.array([[-0.2, -0.15], [0.2, -0.15], [0.2, 0.15], [-0.2, 0.15]])
+    for seed, (polygon, expected) in enumerate([(rectangle_polygon, [0, 1, 2, 3]), (TSHIRT, TSHIRT_CORNERS)] * 3):
+        rng = np.random.default_rng(seed)
+        canonical, faces, _ = hex_mesh(polygon, origin=rng.uniform(0.0, S, 2))
+        edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+        _, inverse, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
+        on_outline = (counts[inverse.ravel()] == 1).reshape(3, -1).any(axis=0)
+        centroid = canonical[faces].mean(axis=1)
+        _, to_corner = nearest_polygon_vertex(centroid, polygon)
+        notched = faces[~(on_outline & (to_corner > 2.5 * S) & (rng.random(len(faces)) < 0.3))]
+        corners = find_corners(canonical, notched, boundary_of(notched, len(canonical)))
+        which, dist = nearest_polygon_vertex(canonical[corners], polygon)
+        assert sorted(which) == expected
+        assert np.all(dist < 2.5 * S)
+
+
 def test_find_corners_l_shape_skips_concave_corner():
     polygon = np.array([[0, 0], [0.4, 0], [0.4, 0.2], [0.2, 0.2], [0.2, 0.4], [0, 0.4]])
     canonical, faces, boundary = hex_mesh(polygon, origin=(0.003, 0.007))
@@ -494,6 +512,19 @@ def test_confidence_scales_the_score():
     unsure = plan_grasps(estimate(canonical, faces, boundary, confidence=0.4))
     assert sure.plans[0].score == pytest.approx(1.0)
     assert unsure.plans[0].score == pytest.approx((1.0 + 0.4) / 2)  # mean of clearance and confidence
+
+
+def test_degenerate_or_unreachable_geometry_gives_a_reason():
+    canonical, faces, boundary, _ = rectangle(6, 4)
+    collapsed = estimate(canonical, faces, boundary, vertices=np.tile([0.0, 0.0, 1.0], (len(canonical), 1)))
+    result = plan_grasps(collapsed)
+    assert result.plans == () and result.reason == "all 4 corner candidates rejected: 4 degenerate geometry"
+    result = plan_grasps(collapsed, GraspPlannerConfig(mode="highest"))
+    assert result.reason == "all 1 highest candidates rejected: 1 degenerate geometry"
+    nowhere = GraspPlannerConfig(mode="highest", workspace_min_world=[5.0, 5.0, 5.0], workspace_max_world=[6.0, 6.0, 6.0])
+    result = plan_grasps(estimate(canonical, faces, boundary), nowhere)
+    assert result.reason == "no vertex inside the workspace"
+    assert result.rejected == {"outside workspace": len(canonical)}
 
 
 def test_no_boundary_or_no_corners_gives_a_reason():

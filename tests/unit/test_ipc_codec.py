@@ -191,23 +191,47 @@ CASES = [
     (m.MeshEstimate, lambda f: f["energies"].update(depth=float("-inf")), r"MeshEstimate\.energies\['depth'\]: expected a finite number"),
     (m.MeshEstimate, lambda f: f.update(lost=1), r"MeshEstimate\.lost: expected a bool, got int"),
     (m.MeshEstimate, lambda f: f.update(confidence=1.5), r"MeshEstimate\.confidence: expected a value in \[0, 1\]"),
-    (m.MeshEstimate, lambda f: set_array(f, "vertices", [[0, 0, np.inf]] * 4, "float64"), r"MeshEstimate\.vertices: contains NaN or infinite"),
+    (
+        m.MeshEstimate,
+        lambda f: set_array(f, "vertices", [[0, 0, np.inf]] * 4, "float64"),
+        r"MeshEstimate\.vertices: contains NaN or infinite",
+    ),
     (m.MeshEstimate, lambda f: set_array(f, "faces", [[0, 1, 9]], "int32"), r"MeshEstimate\.faces: vertex ids outside \[0, 4\)"),
-    (m.MeshEstimate, lambda f: set_array(f, "faces", [[0, 1, 2]], "float64"), r"MeshEstimate\.faces: dtype 'float64' not allowed; expected one of \('int32',\)"),
-    (m.MeshEstimate, lambda f: set_array(f, "boundary", [[0, 1]], "int32"), r"MeshEstimate\.boundary: expected a shape of 1 non-negative integers"),
+    (
+        m.MeshEstimate,
+        lambda f: set_array(f, "faces", [[0, 1, 2]], "float64"),
+        r"MeshEstimate\.faces: dtype 'float64' not allowed; expected one of \('int32',\)",
+    ),
+    (
+        m.MeshEstimate,
+        lambda f: set_array(f, "boundary", [[0, 1]], "int32"),
+        r"MeshEstimate\.boundary: expected a shape of 1 non-negative integers",
+    ),
     (m.GraspPlan, lambda f: set_array(f, "position", [0, np.nan, 1], "float64"), r"GraspPlan\.position: contains NaN or infinite"),
     (m.GraspPlan, lambda f: f.update(kind="middle"), r"GraspPlan\.kind: expected one of"),
     (m.GraspPlan, lambda f: f.update(vertex_id=-3), r"GraspPlan\.vertex_id: expected an integer in \[0, "),
     (m.RGBDFrame, lambda f: set_array(f, "depth_m", np.full((3, 4), np.inf), "float32"), r"RGBDFrame\.depth_m: infinite depth values"),
     (m.RGBDFrame, lambda f: set_array(f, "depth_m", np.full((3, 4), -1.0), "float32"), r"RGBDFrame\.depth_m: negative depth values"),
-    (m.RGBDFrame, lambda f: set_array(f, "depth_m", np.ones((3, 5)), "float32"), r"RGBDFrame\.depth_m: expected shape \(3, 4\), got \(3, 5\)"),
+    (
+        m.RGBDFrame,
+        lambda f: set_array(f, "depth_m", np.ones((3, 5)), "float32"),
+        r"RGBDFrame\.depth_m: expected shape \(3, 4\), got \(3, 5\)",
+    ),
     (m.RGBDFrame, lambda f: set_array(f["camera"], "K", np.eye(3) * np.nan, "float64"), r"RGBDFrame\.camera: CameraInfo\.K: contains NaN"),
     (m.RGBDFrame, lambda f: f["camera"].update(width=0), r"RGBDFrame\.camera\.width: expected an integer in \[1, 65535\], got 0"),
     (m.RGBDFrame, lambda f: f.update(camera=[1, 2]), r"RGBDFrame\.camera: expected a map of fields, got list"),
     (m.RGBDFrame, lambda f: f["rgb"].update(shape=[3, 4]), r"RGBDFrame\.rgb: expected a shape of 3 non-negative integers, got \[3, 4\]"),
     (m.RGBDFrame, lambda f: f["rgb"].update(shape=[3, -4, 3]), r"RGBDFrame\.rgb: expected a shape of 3 non-negative integers"),
-    (m.RGBDFrame, lambda f: f["rgb"].update(shape=[2**40, 2**40, 3]), r"RGBDFrame\.rgb: declared shape \[1099511627776, 1099511627776, 3\] needs \d+ bytes, over the limit"),
-    (m.RGBDFrame, lambda f: f["rgb"].update(shape=[3, 4, 4]), r"RGBDFrame\.rgb: declared uint8 shape \[3, 4, 4\] needs 48 bytes but inline data has 36"),
+    (
+        m.RGBDFrame,
+        lambda f: f["rgb"].update(shape=[2**40, 2**40, 3]),
+        r"RGBDFrame\.rgb: declared shape \[1099511627776, 1099511627776, 3\] needs \d+ bytes, over the limit",
+    ),
+    (
+        m.RGBDFrame,
+        lambda f: f["rgb"].update(shape=[3, 4, 4]),
+        r"RGBDFrame\.rgb: declared uint8 shape \[3, 4, 4\] needs 48 bytes but inline data has 36",
+    ),
     (m.RGBDFrame, lambda f: f["rgb"].update(dtype="object"), r"RGBDFrame\.rgb: dtype 'object' not allowed"),
     (m.RGBDFrame, lambda f: f["rgb"].update(data="abc"), r"RGBDFrame\.rgb: expected bin data, got str"),
     (m.RGBDFrame, lambda f: f["rgb"].update(extra=1), r"RGBDFrame\.rgb: expected an array map with keys dtype, shape and data or frame"),
@@ -215,8 +239,16 @@ CASES = [
     (m.GraspRequest, lambda f: f.update(kinds="corner"), r"GraspRequest\.kinds: expected an array, got str"),
     (m.GraspRequest, lambda f: f["estimate"].update(iterations=-1), r"GraspRequest\.estimate\.iterations: expected an integer in \[0, "),
     (m.GraspPlanReply, lambda f: f["candidates"].reverse(), r"GraspPlanReply\.candidates: expected best first"),
-    (m.GraspPlanReply, lambda f: f["candidates"][1].update(score="high"), r"GraspPlanReply\.candidates\[1\]\.score: expected a number, got str"),
-    (m.SetParametersRequest, lambda f: f["parameters"].update(x=[1]), r"SetParametersRequest\.parameters\['x'\]: expected bool, int, float or str, got list"),
+    (
+        m.GraspPlanReply,
+        lambda f: f["candidates"][1].update(score="high"),
+        r"GraspPlanReply\.candidates\[1\]\.score: expected a number, got str",
+    ),
+    (
+        m.SetParametersRequest,
+        lambda f: f["parameters"].update(x=[1]),
+        r"SetParametersRequest\.parameters\['x'\]: expected bool, int, float or str, got list",
+    ),
     (m.SetParametersRequest, lambda f: f.update(parameters={}), r"SetParametersRequest\.parameters: expected at least one parameter"),
     (m.InitialiseRequest, lambda f: set_array(f, "mask", np.zeros((2, 2)), "uint8"), r"InitialiseRequest\.mask: no non-zero pixel"),
     (m.ErrorReply, lambda f: f.update(code="bad"), r"ErrorReply\.code: expected one of"),
@@ -263,7 +295,15 @@ def test_extension_types_and_duplicate_keys_are_refused():
         decode([ext])
     # Hand-made map with the key "request_id" twice: a second value must not shadow the first.
     body = b"\x82" + msgpack.packb("request_id") + b"\x01" + msgpack.packb("request_id") + b"\x02"
-    dup = b"\x83" + msgpack.packb("type") + msgpack.packb("StatusRequest") + msgpack.packb("version") + b"\x01" + msgpack.packb("fields") + body
+    dup = (
+        b"\x83"
+        + msgpack.packb("type")
+        + msgpack.packb("StatusRequest")
+        + msgpack.packb("version")
+        + b"\x01"
+        + msgpack.packb("fields")
+        + body
+    )
     with pytest.raises(ProtocolError, match="duplicate map key 'request_id'"):
         decode([dup])
 

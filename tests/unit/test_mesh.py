@@ -101,3 +101,21 @@ def test_largest_piece_kept():
     m = mesh_from_lattice(lat, 0.1)
     assert m.n_vertices == 12
     np.testing.assert_allclose(lattice_to_xy(m.lattice, 0.1), m.material_xy)
+
+
+def test_every_triangle_between_kept_vertices_is_built():
+    """A triangle exists exactly when its three lattice corners are kept, whatever else is missing."""
+    rng = np.random.default_rng(4)
+    full = np.array([[q, r] for q in range(8) for r in range(6)])
+    keep = full[rng.random(len(full)) < 0.8]
+    m = mesh_from_lattice(keep, 0.1)
+    kept = {tuple(x) for x in m.lattice}
+    expected = 0
+    for q, r in kept:
+        expected += {(q + 1, r), (q, r + 1)} <= kept  # up triangle from its lowest corner
+        expected += {(q, r + 1), (q - 1, r + 1)} <= kept  # down triangle from its lowest corner
+    assert len(m.faces) == expected
+    xy = m.material_xy
+    a, b, c = (xy[m.faces[:, i]] for i in range(3))
+    cross = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0]
+    assert np.all(cross > 0)  # all counter-clockwise in the material frame
