@@ -15,8 +15,10 @@ Prints, for depth sent as float32 metres and as uint16 millimetres:
   decoded) to the subscriber, and the rate offered by the publisher (PUB drops what
   the connection cannot take, so it can exceed the delivered rate).
 
-Each figure is the median over ``--runs`` runs. Targets: p99 <= 5 ms at 30 Hz,
->= 300 frames/s delivered.
+Each figure is the median over ``--runs`` runs. The same runs are repeated with a peer:
+plain pyzmq PUB/SUB sending the same image bytes as raw frames (no header, codec,
+validation, heartbeats or receiver thread), the floor that this machine's loopback
+allows at the same time. Targets: p99 <= 5 ms at 30 Hz, >= 300 frames/s delivered.
 """
 
 from __future__ import annotations
@@ -27,20 +29,23 @@ import math
 import multiprocessing as mp
 import os
 import statistics
+import struct
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+import zmq
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout without installing
 
 from ipc import codec  # noqa: E402
 from ipc.messages import CameraInfo, RGBDFrame  # noqa: E402
-from ipc.transport import Publisher, Subscriber  # noqa: E402
+from ipc.transport import HWM, Publisher, Subscriber  # noqa: E402
 
 WIDTH, HEIGHT = 640, 480
 WARMUP_SEQ = -1
+STAMP = struct.Struct("<qd")  # the peer's first frame: seq, timestamp
 
 
 def make_frame(seed: int = 0) -> RGBDFrame:
@@ -66,7 +71,59 @@ def bench_codec(frame: RGBDFrame, depth_scale: float | None, repeats: int = 200)
     return 1e3 * statistics.median(enc), 1e3 * statistics.median(dec)
 
 
-def publisher_process(endpoints, go, done, depth_scale, rate_hz, amount, report) -> None:
+class _PeerPublisher:
+    """Plain PUB socket sending [seq+stamp, rgb bytes, depth bytes]: the peer to compare with."""
+
+    def __init__(self, depth_scale: float | None):
+        self.sock = zmq.Context.instance().socket(zmq.PUB)
+        self.sock.setsockopt(zmq.LINGER, 0)
+        self.sock.setsockopt(zmq.SNDHWM, HWM)
+        self.endpoint = f"tcp://127.0.0.1:{self.sock.bind_to_random_port('tcp://127.0.0.1')}"
+        self.depth_scale = depth_scale
+
+    def publish(self, frame: RGBDFrame) -> None:
+        depth = frame.depth_m if self.depth_scale is None else np.rint(frame.depth_m * self.depth_scale).astype(np.uint16)
+        self.sock.send_multipart([STAMP.pack(frame.seq, frame.timestamp_s), frame.rgb, depth], copy=False)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class _PeerSubscriber:
+    """Plain SUB socket read in the calling thread; returns (seq, timestamp) per message."""
+
+    def __init__(self, endpoint: str):
+        self.sock = zmq.Context.instance().socket(zmq.SUB)
+        self.sock.setsockopt(zmq.LINGER, 0)
+        self.sock.setsockopt(zmq.RCVHWM, HWM)
+        self.sock.setsockopt(zmq.SUBSCRIBE, b"")
+        self.sock.connect(endpoint)
+
+    def receive(self, timeout_s: float) -> tuple[int, float] | None:
+        if not self.sock.poll(int(1000 * timeout_s)):
+            return None
+        head, *buffers = self.sock.recv_multipart(copy=False)
+        for buf in buffers:
+            np.frombuffer(buf, np.uint8)  # as a consumer would view them
+        return STAMP.unpack(head.bytes)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+class _IpcSubscriber:
+    def __init__(self, endpoint: str):
+        self.sub = Subscriber(endpoint, accept=(RGBDFrame,))
+
+    def receive(self, timeout_s: float) -> tuple[int, float] | None:
+        msg = self.sub.recv_latest(timeout_s)
+        return None if msg is None else (msg.seq, msg.timestamp_s)
+
+    def close(self) -> None:
+        self.sub.close()
+
+
+def publisher_process(peer, endpoints, go, done, depth_scale, rate_hz, amount, report) -> None:
     """Publish warm-up frames until ``go``, then measured frames.
 
     rate_hz > 0: ``amount`` frames at ``rate_hz``, each stamped with the clock as it is
@@ -74,7 +131,8 @@ def publisher_process(endpoints, go, done, depth_scale, rate_hz, amount, report)
     Puts the send rate (frames/s) on ``report``.
     """
     base = make_frame()
-    with Publisher("tcp://127.0.0.1:*", source="bench", depth_scale=depth_scale) as pub:
+    pub = _PeerPublisher(depth_scale) if peer else Publisher("tcp://127.0.0.1:*", source="bench", depth_scale=depth_scale)
+    try:
         endpoints.put(pub.endpoint)
         while not go.wait(0.02):
             pub.publish(dataclasses.replace(base, seq=WARMUP_SEQ, timestamp_s=time.perf_counter()))
@@ -92,9 +150,11 @@ def publisher_process(endpoints, go, done, depth_scale, rate_hz, amount, report)
                 sent += 1
         report.put(sent / (time.perf_counter() - start))
         done.wait(30.0)
+    finally:
+        pub.close()
 
 
-def transport_run(depth_scale: float | None, rate_hz: float, amount: float) -> dict:
+def transport_run(peer: bool, depth_scale: float | None, rate_hz: float, amount: float) -> dict:
     """One run with a fresh publisher process (see ``publisher_process``).
 
     Returns latencies (s, rate_hz > 0 only), frames received, delivered and sent rates.
@@ -102,29 +162,34 @@ def transport_run(depth_scale: float | None, rate_hz: float, amount: float) -> d
     ctx = mp.get_context("spawn")
     endpoints, report = ctx.Queue(), ctx.Queue()
     go, done = ctx.Event(), ctx.Event()
-    proc = ctx.Process(target=publisher_process, args=(endpoints, go, done, depth_scale, rate_hz, amount, report), daemon=True)
+    args = (peer, endpoints, go, done, depth_scale, rate_hz, amount, report)
+    proc = ctx.Process(target=publisher_process, args=args, daemon=True)
     proc.start()
+    receiver = None
     try:
-        with Subscriber(endpoints.get(timeout=30.0), accept=(RGBDFrame,)) as sub:
-            while (msg := sub.recv_latest(timeout_s=10.0)) is not None and msg.seq != WARMUP_SEQ:
-                pass
-            if msg is None:
-                raise RuntimeError("no warm-up frame from the publisher")
-            go.set()
-            latencies, first, last, received = [], None, None, 0
-            while received < (amount if rate_hz else math.inf):
-                msg = sub.recv_latest(timeout_s=1.0)
-                if msg is None:
-                    break  # the publisher has finished (or died)
-                now = time.perf_counter()
-                if msg.seq == WARMUP_SEQ:
-                    continue
-                if rate_hz:
-                    latencies.append(now - msg.timestamp_s)
-                first = now if first is None else first
-                last, received = now, received + 1
-            send_rate = report.get(timeout=30.0)
+        endpoint = endpoints.get(timeout=30.0)
+        receiver = _PeerSubscriber(endpoint) if peer else _IpcSubscriber(endpoint)
+        while (got := receiver.receive(timeout_s=10.0)) is not None and got[0] != WARMUP_SEQ:
+            pass
+        if got is None:
+            raise RuntimeError("no warm-up frame from the publisher")
+        go.set()
+        latencies, first, last, received = [], None, None, 0
+        while received < (amount if rate_hz else math.inf):
+            got = receiver.receive(timeout_s=1.0)
+            if got is None:
+                break  # the publisher has finished (or died)
+            now = time.perf_counter()
+            if got[0] == WARMUP_SEQ:
+                continue
+            if rate_hz:
+                latencies.append(now - got[1])
+            first = now if first is None else first
+            last, received = now, received + 1
+        send_rate = report.get(timeout=30.0)
     finally:
+        if receiver is not None:
+            receiver.close()
         done.set()
         proc.join(timeout=10.0)
         if proc.is_alive():
@@ -137,6 +202,21 @@ def transport_run(depth_scale: float | None, rate_hz: float, amount: float) -> d
     }
 
 
+def transport_figures(peer: bool, depth_scale: float | None, args) -> str:
+    n = int(30.0 * args.seconds)
+    lat_runs = [transport_run(peer, depth_scale, 30.0, n) for _ in range(args.runs)]
+    p50 = statistics.median(1e3 * np.percentile(r["latencies"], 50) for r in lat_runs)
+    p99 = statistics.median(1e3 * np.percentile(r["latencies"], 99) for r in lat_runs)
+    lost = sum(n - r["received"] for r in lat_runs)
+    thr_runs = [transport_run(peer, depth_scale, 0.0, args.throughput_seconds) for _ in range(args.runs)]
+    fps = statistics.median(r["delivered_fps"] for r in thr_runs)
+    offered = statistics.median(r["send_fps"] for r in thr_runs)
+    return (
+        f"30 Hz latency p50 {p50:5.2f} ms, p99 {p99:5.2f} ms ({n} frames per run, {lost} lost in all); "
+        f"throughput {fps:4.0f} frames/s delivered ({offered:.0f} offered)"
+    )
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=3, help="runs per figure; the median is reported")
@@ -147,29 +227,17 @@ def main(argv: list[str] | None = None) -> int:
     cores = os.cpu_count()
     usable = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else cores
     print(f"cores: {cores} (usable by this process: {usable}); python {sys.version.split()[0]}; frame {WIDTH}x{HEIGHT} RGB-D")
-    print(f"each figure: median of {args.runs} runs\n")
+    print(f"each figure: median of {args.runs} runs; load average before: {os.getloadavg()[0]:.2f}\n")
     frame = make_frame()
-    print(f"load average before: {os.getloadavg()[0]:.2f} (other processes compete for the cores)\n")
     for label, scale in (("float32 depth", None), ("uint16 depth, depth_scale 1000", 1000.0)):
         size = sum(len(f) for f in codec.encode(frame, depth_scale=scale))
         codec_runs = [bench_codec(frame, scale) for _ in range(args.runs)]
         enc = statistics.median(r[0] for r in codec_runs)
         dec = statistics.median(r[1] for r in codec_runs)
-        lat_runs = [transport_run(scale, 30.0, int(30.0 * args.seconds)) for _ in range(args.runs)]
-        p50 = statistics.median(1e3 * np.percentile(r["latencies"], 50) for r in lat_runs)
-        p99 = statistics.median(1e3 * np.percentile(r["latencies"], 99) for r in lat_runs)
-        lost = sum(int(30.0 * args.seconds) - r["received"] for r in lat_runs)
-        thr_runs = [transport_run(scale, 0.0, args.throughput_seconds) for _ in range(args.runs)]
-        fps = statistics.median(r["delivered_fps"] for r in thr_runs)
-        send = statistics.median(r["send_fps"] for r in thr_runs)
         print(f"== {label}: {size / 2**20:.2f} MiB on the wire")
-        print(f"codec:      encode {enc:.2f} ms, decode {dec:.2f} ms (median of {args.runs} x 200)")
-        print(
-            f"30 Hz:      latency p50 {p50:.2f} ms, p99 {p99:.2f} ms over {int(30 * args.seconds)} frames per run; frames lost in all runs: {lost}"
-        )
-        print(
-            f"throughput: {fps:.0f} frames/s delivered and decoded ({send:.0f} frames/s offered, {args.throughput_seconds:g} s per run)\n"
-        )
+        print(f"codec: encode {enc:.2f} ms, decode {dec:.2f} ms")
+        print(f"ipc:   {transport_figures(False, scale, args)}")
+        print(f"peer:  {transport_figures(True, scale, args)}  [plain pyzmq, raw buffers]\n")
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     return 0
 

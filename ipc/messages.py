@@ -117,9 +117,11 @@ class RGBDFrame:
             raise ValueError(f"RGBDFrame.camera: expected CameraInfo, got {type(cam).__name__}")
         rgb = _check_array("RGBDFrame.rgb", self.rgb, (cam.height, cam.width, 3), np.uint8)
         depth = _check_array("RGBDFrame.depth_m", self.depth_m, (cam.height, cam.width), np.float32)
-        if np.any(depth < 0):
+        # fmin/fmax skip NaN (missing) and are one fast pass each; this runs on every
+        # frame a service receives. A -inf shows as negative, as it did with depth < 0.
+        if np.fmin.reduce(depth, axis=None) < 0:
             raise ValueError("RGBDFrame.depth_m: negative depth values")
-        if np.any(np.isinf(depth)):
+        if np.isinf(np.fmax.reduce(depth, axis=None)):
             raise ValueError("RGBDFrame.depth_m: infinite depth values (use 0 or NaN for missing)")
         if not math.isfinite(float(self.timestamp_s)):
             raise ValueError(f"RGBDFrame.timestamp_s: expected a finite number, got {self.timestamp_s}")

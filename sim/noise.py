@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
+from functools import lru_cache
+from statistics import NormalDist
 
 import cv2
 import numpy as np
@@ -56,14 +58,35 @@ class DepthNoiseModel:
     colour_sigma: float = 2.0
 
     def sigma_z(self, depth_m: np.ndarray) -> np.ndarray:
-        """Axial noise standard deviation (metres) at depth ``depth_m`` (metres), same shape."""
-        z = np.asarray(depth_m, dtype=np.float64)
+        """Axial noise standard deviation (metres) at depth ``depth_m`` (metres), same shape and float dtype."""
+        z = np.asarray(depth_m)
         return self.sigma_base_m + self.sigma_quad_m * (z - self.sigma_ref_m) ** 2
 
     def depth_step(self, depth_m: np.ndarray, fx: float) -> np.ndarray:
         """Quantisation step (metres) at depth ``depth_m`` for focal length ``fx`` pixels."""
         z = np.asarray(depth_m, dtype=np.float64)
         return z**2 * self.disparity_step_px / (fx * self.baseline_m)
+
+
+@lru_cache(maxsize=2)
+def _normal_quantiles(bits: int) -> np.ndarray:
+    """(2**bits,) float32 standard-normal quantiles at the centres of equal-probability bins."""
+    n = 1 << bits
+    inv_cdf = NormalDist().inv_cdf
+    return np.array([inv_cdf((i + 0.5) / n) for i in range(n)], dtype=np.float32)
+
+
+def standard_normal_fast(rng: np.random.Generator, shape: tuple, bits: int = 16) -> np.ndarray:
+    """Standard-normal float32 samples drawn as uniform integers mapped through the
+    inverse CDF: exact in distribution up to ``2**bits`` levels (16 bits: tails cut at
+    4.3 sigma), several times faster than ``Generator.standard_normal`` on images.
+
+    rng : numpy Generator; shape : output shape; bits : 8 or 16
+    """
+    if bits not in (8, 16):
+        raise ValueError(f"standard_normal_fast: expected bits 8 or 16, got {bits}")
+    dtype = np.uint8 if bits == 8 else np.uint16
+    return _normal_quantiles(bits)[rng.integers(0, 1 << bits, size=shape, dtype=dtype)]
 
 
 def check_depth_image(depth_m, name: str = "depth_m") -> np.ndarray:
@@ -78,19 +101,24 @@ def incidence_angles(depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Angle between the surface normal and the viewing ray at each pixel.
 
     depth_m : (H, W) float, metres along z, 0 = none; K : (3, 3) intrinsics
-    returns (H, W) float64 radians in [0, pi/2]; NaN where depth or a neighbour is missing
+    returns (H, W) float32 radians in [0, pi/2]; NaN where depth or a neighbour is missing
+
+    With P = z (x, y, 1), x = (u - cx) / fx, y = (v - cy) / fy, the normal
+    dP/du x dP/dv is proportional to n = (-fx z_u, -fy z_v, z + fx x z_u + fy y z_v)
+    and n . (x, y, 1) = z, so cos(angle) = z / (|n| |(x, y, 1)|): a few array operations
+    on the depth gradients instead of cross products of point images.
     """
-    z = check_depth_image(depth_m).astype(np.float64)
+    z = check_depth_image(depth_m)
     h, w = z.shape
-    u = (np.arange(w) - K[0, 2]) / K[0, 0]
-    v = (np.arange(h) - K[1, 2]) / K[1, 1]
-    z = np.where(z > 0, z, np.nan)
-    points = np.stack([u[None, :] * z, v[:, None] * z, z], axis=2)
-    du = np.gradient(points, axis=1)
-    dv = np.gradient(points, axis=0)
-    normal = np.cross(du, dv)
-    ray = np.stack(np.broadcast_arrays(u[None, :], v[:, None], np.ones((1, 1))), axis=2)
-    cos = np.abs(np.sum(normal * ray, axis=2)) / (np.linalg.norm(normal, axis=2) * np.linalg.norm(ray, axis=2))
+    fx, fy = np.float32(K[0, 0]), np.float32(K[1, 1])
+    x = ((np.arange(w, dtype=np.float32) - np.float32(K[0, 2])) / fx)[None, :]
+    y = ((np.arange(h, dtype=np.float32) - np.float32(K[1, 2])) / fy)[:, None]
+    zn = np.where(z > 0, z, np.float32(np.nan))
+    z_v, z_u = np.gradient(zn)
+    nx = -fx * z_u
+    ny = -fy * z_v
+    nz = zn + fx * x * z_u + fy * y * z_v
+    cos = zn / (np.sqrt(nx * nx + ny * ny + nz * nz) * np.sqrt(x * x + y * y + 1.0))
     with np.errstate(invalid="ignore"):
         return np.arccos(np.clip(cos, 0.0, 1.0))
 
@@ -111,25 +139,27 @@ def add_depth_noise(depth_m: np.ndarray, K: np.ndarray, model: DepthNoiseModel,
 
     # discontinuities: a nearer neighbour within the shadow window hides this pixel
     # from the emitter
-    threshold = np.maximum(model.edge_jump_m, model.edge_jump_rel * filled)
+    threshold = np.maximum(np.float32(model.edge_jump_m), np.float32(model.edge_jump_rel) * filled)
     k = 2 * int(model.shadow_px) + 1
     nearest_around = cv2.erode(filled, np.ones((k, k), np.uint8))
     lost = filled - nearest_around > threshold
 
+    # grazing angles and random dropouts, with one uniform draw per pixel:
+    # P(lost) = 1 - (1 - p_grazing) (1 - p_dropout)
     angle = incidence_angles(z, K)
-    ramp = (angle - model.grazing_start_rad) / (model.grazing_stop_rad - model.grazing_start_rad)
+    ramp = (angle - np.float32(model.grazing_start_rad)) / np.float32(model.grazing_stop_rad - model.grazing_start_rad)
     p_grazing = np.clip(np.nan_to_num(ramp, nan=1.0), 0.0, 1.0)
-    lost |= rng.random(z.shape) < p_grazing
-    lost |= rng.random(z.shape) < model.dropout_prob
+    p_lost = 1.0 - (1.0 - p_grazing) * np.float32(1.0 - model.dropout_prob)
+    lost |= rng.random(z.shape, dtype=np.float32) < p_lost
 
-    noisy = z.astype(np.float64) + rng.standard_normal(z.shape) * model.sigma_z(z)
+    noisy = z + standard_normal_fast(rng, z.shape) * model.sigma_z(z)
     # the sensor measures disparity: quantise there, then convert back to depth
-    fb = K[0, 0] * model.baseline_m
+    fb = np.float32(K[0, 0] * model.baseline_m)
+    step = np.float32(model.disparity_step_px)
     with np.errstate(divide="ignore", invalid="ignore"):
-        disparity = np.round(fb / noisy / model.disparity_step_px) * model.disparity_step_px
-        noisy = np.where(disparity > 0, fb / disparity, 0.0)
-    keep = valid & ~lost
-    return np.where(keep, noisy, 0.0).astype(np.float32)
+        disparity = np.round(fb / noisy / step) * step
+        noisy = np.where(disparity > 0, fb / disparity, np.float32(0))
+    return np.where(valid & ~lost, noisy, np.float32(0)).astype(np.float32)
 
 
 def add_colour_noise(rgb: np.ndarray, sigma: float, rng: np.random.Generator) -> np.ndarray:
@@ -137,5 +167,8 @@ def add_colour_noise(rgb: np.ndarray, sigma: float, rng: np.random.Generator) ->
     img = np.asarray(rgb)
     if img.ndim != 3 or img.shape[2] != 3 or img.dtype != np.uint8:
         raise ValueError(f"add_colour_noise: expected an (H, W, 3) uint8 image, got {img.dtype} {img.shape}")
-    noisy = img.astype(np.float32) + rng.standard_normal(img.shape, dtype=np.float32) * np.float32(sigma)
-    return np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
+    noisy = img.astype(np.float32)
+    # 8-bit quantiles are plenty for noise of a few levels on 8-bit colour
+    noisy += standard_normal_fast(rng, img.shape, bits=8) * np.float32(sigma)
+    np.rint(noisy, out=noisy)
+    return np.clip(noisy, 0, 255, out=noisy).astype(np.uint8)

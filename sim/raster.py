@@ -66,6 +66,23 @@ def vertex_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
+def _vertex_lighting(points: np.ndarray, faces: np.ndarray, shading: Shading) -> np.ndarray:
+    """(V, 2) diffuse factor (ambient + diffuse * Lambert) and specular term at each vertex.
+
+    Two-sided: each vertex normal is flipped to face the camera before lighting.
+    """
+    normal = vertex_normals(points, faces)
+    to_eye = -points / np.linalg.norm(points, axis=1, keepdims=True)
+    normal *= np.where(np.sum(normal * to_eye, axis=1) < 0, -1.0, 1.0)[:, None]
+    light = np.asarray(shading.light_dir_cam, dtype=np.float64)
+    light = light / np.linalg.norm(light)
+    lambert = np.clip(normal @ light, 0.0, None)
+    half = light + to_eye
+    half /= np.maximum(np.linalg.norm(half, axis=1, keepdims=True), 1e-12)
+    spec = np.clip(np.sum(normal * half, axis=1), 0.0, None) ** shading.shininess
+    return np.stack([shading.ambient + shading.diffuse * lambert, spec], axis=1)
+
+
 def _sample_bilinear(texture_rgb: np.ndarray, st: np.ndarray) -> np.ndarray:
     """(N, 3) float32 colours of texture_rgb at OBJ texture coordinates st (N, 2)."""
     Ht, Wt = texture_rgb.shape[:2]
@@ -122,11 +139,74 @@ def rasterise_mesh(points_cam: np.ndarray, faces: np.ndarray, tex_coords: np.nda
     y1 = np.minimum(np.floor(V.max(axis=1)), H - 1).astype(np.int64)
     area2 = (U[:, 1] - U[:, 0]) * (V[:, 2] - V[:, 0]) - (U[:, 2] - U[:, 0]) * (V[:, 1] - V[:, 0])
     keep = (x1 >= x0) & (y1 >= y0) & (np.abs(area2) > 1e-12)
-    f, U, V, x0, y0, area2 = f[keep], U[keep], V[keep], x0[keep], y0[keep], area2[keep]
-    bw = x1[keep] - x0 + 1
-    counts = bw * (y1[keep] - y0 + 1)
-    if counts.sum() == 0:
+    f, U, V, y0, area2 = f[keep], U[keep], V[keep], y0[keep], area2[keep]
+    if len(f) == 0:
         return MeshRaster(rgb, depth, mask)
+
+    # per triangle: screen-space barycentric weights of corners 0 and 1 as affine
+    # functions of the pixel (w_k = A_k x + B_k y + C_k, the signed area of the
+    # sub-triangle opposite corner k), and 1/z at the corners, gathered once per candidate
+    i, j = [1, 2], [2, 0]  # the corners opposite 0 and 1, in order
+    coef = np.empty((len(f), 9))
+    coef[:, 0:2] = (V[:, i] - V[:, j]) / area2[:, None]
+    coef[:, 2:4] = (U[:, j] - U[:, i]) / area2[:, None]
+    coef[:, 4:6] = (U[:, i] * V[:, j] - U[:, j] * V[:, i]) / area2[:, None]
+    coef[:, 6:9] = 1.0 / z[f]
+
+    # scanlines: for each (triangle, row) the span of pixel centres inside it, from the
+    # crossings of the row with the triangle's non-horizontal edges
+    rows = y1[keep] - y0 + 1
+    span_tri = np.repeat(np.arange(len(f)), rows)
+    span_y = y0[span_tri] + np.arange(rows.sum()) - np.repeat(np.cumsum(rows) - rows, rows)
+    left = np.full(len(span_tri), np.inf)
+    right = np.full(len(span_tri), -np.inf)
+    Us, Vs = U[span_tri], V[span_tri]
+    for a, b in ((0, 1), (1, 2), (2, 0)):
+        va, vb = Vs[:, a], Vs[:, b]
+        crosses = (np.minimum(va, vb) <= span_y) & (span_y <= np.maximum(va, vb)) & (va != vb)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = Us[:, a] + (span_y - va) * (Us[:, b] - Us[:, a]) / (vb - va)
+        left = np.where(crosses, np.minimum(left, x), left)
+        right = np.where(crosses, np.maximum(right, x), right)
+    finite = np.isfinite(left)
+    span_x0 = np.where(finite, np.maximum(np.ceil(left - 1e-9), 0), 0).astype(np.int64)
+    span_x1 = np.where(finite, np.minimum(np.floor(right + 1e-9), W - 1), -1).astype(np.int64)
+    widths = np.maximum(span_x1 - span_x0 + 1, 0)
+
+    tri = np.repeat(span_tri, widths)
+    px = np.repeat(span_x0, widths) + np.arange(widths.sum()) - np.repeat(np.cumsum(widths) - widths, widths)
+    py = np.repeat(span_y, widths)
+    c = coef[tri]
+    w0 = c[:, 0] * px + c[:, 2] * py + c[:, 4]
+    w1 = c[:, 1] * px + c[:, 3] * py + c[:, 5]
+    w2 = 1.0 - w0 - w1
+
+    # screen-space weights interpolate 1/z linearly
+    inv_depth = w0 * c[:, 6] + w1 * c[:, 7] + w2 * c[:, 8]
+    cand_z = 1.0 / inv_depth
+    pix = py * W + px
+    zbuf = np.full(W * H, np.inf)
+    np.minimum.at(zbuf, pix, cand_z)
+    win = np.nonzero(cand_z <= zbuf[pix])[0]
+    owner = np.full(W * H, -1, np.int64)
+    owner[pix[win]] = win  # ties (shared edges): the last candidate wins
+    drawn = np.nonzero(owner >= 0)[0]
+    k = owner[drawn]
+
+    # perspective-correct weights, then per-vertex attributes: texture coordinates and
+    # the lighting computed at the vertices (Gouraud shading)
+    scale = cand_z[k]
+    wp = (w0[k] * c[k, 6] * scale, w1[k] * c[k, 7] * scale, w2[k] * c[k, 8] * scale)
+    attr = np.concatenate([tc, _vertex_lighting(pts, f, shading)], axis=1)
+    corners = f[tri[k]]
+    interp = sum(wk[:, None] * attr[corners[:, n]] for n, wk in enumerate(wp))
+    colour = _sample_bilinear(texture_rgb, interp[:, :2])
+    shaded = colour * interp[:, 2:3] + 255.0 * shading.specular * interp[:, 3:4]
+
+    rgb.reshape(-1, 3)[drawn] = np.clip(np.rint(shaded), 0, 255).astype(np.uint8)
+    depth.reshape(-1)[drawn] = scale
+    mask.reshape(-1)[drawn] = True
+    return MeshRaster(rgb, depth, mask)
 
     # one candidate per (triangle, pixel of its bounding box)
     tri = np.repeat(np.arange(len(f)), counts)

@@ -1,0 +1,115 @@
+"""Running trackers on simulated scenes and scoring them against ground truth.
+
+A ``SceneRecording`` is a scene's frames with the true cloth vertices per frame, made once
+and then tracked by any number of tracker variants, so an ablation compares them on
+identical input. Scores follow DESIGN.md ("Measuring"): each estimated vertex is bound at
+frame 0 to the closest point of the true cloth surface and followed as a material point.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from tqdm import tqdm
+
+from ipc.messages import RGBDFrame
+from perception.cpd_baseline import CPDTracker
+from perception.tracker import MeshTracker, TrackerConfig
+from sim.ground_truth import error_summary, vertex_errors
+
+log = logging.getLogger(__name__)
+
+# The paper's ablation (Fig. 4 and 5): which data terms each variant uses.
+ABLATIONS = {
+    "S+C": dict(use_correspondence=True, use_depth=False, use_boundary=False),
+    "S+C+D": dict(use_correspondence=True, use_depth=True, use_boundary=False),
+    "S+C+D+B": dict(use_correspondence=True, use_depth=True, use_boundary=True),
+}
+
+
+@dataclass
+class SceneRecording:
+    """frames : list of RGBDFrame; gt_vertices : (T, V, 3) float64 camera frame;
+    gt_faces : (F, 3) int; masks : list of (H, W) bool true cloth masks (noise-free)."""
+
+    name: str
+    seed: int
+    noise: bool
+    frames: list
+    gt_vertices: np.ndarray
+    gt_faces: np.ndarray
+    masks: list = field(default_factory=list)
+
+
+@dataclass
+class TrackRun:
+    """vertices : (T, N, 3) float64; timing_ms : (T,); lost : (T,) bool; the masks the tracker
+    segmented and its MeshEstimates (empty for peers)."""
+
+    label: str
+    vertices: np.ndarray
+    timing_ms: np.ndarray
+    lost: np.ndarray
+    masks: list = field(default_factory=list)
+    estimates: list = field(default_factory=list)
+
+    def errors(self, rec: SceneRecording) -> np.ndarray:
+        """(T, N) metres, the ground-truth error of every vertex in every frame."""
+        return vertex_errors(self.vertices, rec.gt_vertices, rec.gt_faces)
+
+    def summary(self, rec: SceneRecording) -> dict:
+        out = error_summary(self.errors(rec))
+        out["median_ms"] = float(np.median(self.timing_ms[1:])) if len(self.timing_ms) > 1 else float("nan")
+        out["lost_frames"] = int(self.lost.sum())
+        return out
+
+
+def record_scene(name: str, seed: int = 0, noise: bool = True, n_frames: int = 60, progress: bool = True) -> SceneRecording:
+    """Run the registered scene ``name`` and keep every frame with its ground truth."""
+    from sim.scenes import make_scene  # PyBullet only when a scene is actually run
+
+    frames, gts, masks = [], [], []
+    with make_scene(name, seed=seed, noise=noise) as scene:
+        for frame in tqdm(scene.frames(n_frames), total=n_frames, desc=f"sim {name}", unit="frame",
+                          disable=not progress, leave=False):
+            frames.append(frame)
+            gts.append(scene.cloth_vertices_cam())
+            masks.append(scene.cloth_mask().copy())
+        faces = np.asarray(scene.faces)
+    return SceneRecording(name, seed, noise, frames, np.stack(gts), faces, masks)
+
+
+def track_recording(rec: SceneRecording, config: TrackerConfig, label: str = "tracker",
+                    init_mask: np.ndarray | None = None) -> TrackRun:
+    """Track every frame of ``rec``; the first frame initialises (mask: given, else segmented)."""
+    tracker = MeshTracker(config)
+    verts, timing, lost, masks, estimates = [], [], [], [], []
+    for i, frame in enumerate(rec.frames):
+        est = tracker.initialise(frame, mask=init_mask) if i == 0 else tracker.track(frame)
+        estimates.append(est)
+        verts.append(est.vertices)
+        timing.append(est.timing_ms)
+        lost.append(est.lost)
+        obs = tracker.last_observation
+        masks.append(obs.mask if obs is not None else np.zeros(frame.depth_m.shape, bool))
+    return TrackRun(label, np.stack(verts), np.asarray(timing), np.asarray(lost), masks, estimates)
+
+
+def cpd_recording(rec: SceneRecording, start_vertices: np.ndarray, masks: list, label: str = "pycpd",
+                  **cpd_options) -> TrackRun:
+    """pycpd's deformable CPD frame to frame on the same frames and masks, from the same first mesh."""
+    cpd = CPDTracker(**cpd_options)
+    cpd.initialise(start_vertices)
+    verts, timing = [np.array(start_vertices, dtype=np.float64)], [0.0]
+    for frame, mask in zip(rec.frames[1:], masks[1:]):
+        t0 = time.perf_counter()
+        verts.append(cpd.track(_depth(frame), mask, frame.camera.K))
+        timing.append((time.perf_counter() - t0) * 1000.0)
+    return TrackRun(label, np.stack(verts), np.asarray(timing), np.zeros(len(verts), bool))
+
+
+def _depth(frame: RGBDFrame) -> np.ndarray:
+    return np.nan_to_num(frame.depth_m, nan=0.0)

@@ -1,0 +1,102 @@
+"""Figures of tracking runs: error over time, and 3D views of estimates beside the input cloud.
+
+Each function draws into a new matplotlib figure and saves it as a PNG at ``path``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # files only; never open a window
+import cv2  # noqa: E402
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from mpl_toolkits.mplot3d.art3d import Line3DCollection  # noqa: E402
+
+from perception.camera import rays  # noqa: E402
+from perception.mesh import unique_edges  # noqa: E402
+from perception.overlay import draw_mesh  # noqa: E402
+
+# (elevation, azimuth) of matplotlib's 3D camera for the paper's Fig. 5 views, with the
+# optical frame re-labelled so that "up" is -y and the viewer looks along +z.
+VIEWS = {"front": (0, -90), "top": (90, -90), "45° pan": (0, -45)}
+
+
+def _to_plot(points_cam: np.ndarray) -> np.ndarray:
+    """Optical (x right, y down, z forward) to plot axes (x right, y forward, z up)."""
+    return np.column_stack([points_cam[:, 0], points_cam[:, 2], -points_cam[:, 1]])
+
+
+def error_over_time(path: Path, title: str, series: dict[str, np.ndarray], fps: float = 30.0) -> None:
+    """series : label -> (T, N) metres; plots each label's mean (solid) and 95th percentile (dotted)."""
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    for i, (label, err) in enumerate(series.items()):
+        t = np.arange(err.shape[0]) / fps
+        colour = f"C{i}"
+        ax.plot(t, 1000 * err.mean(axis=1), color=colour, label=f"{label} mean")
+        ax.plot(t, 1000 * np.percentile(err, 95, axis=1), color=colour, linestyle=":", label=f"{label} p95")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("vertex error (mm)")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def cloud_of(frame, mask: np.ndarray, max_points: int = 4000, rng=None) -> tuple[np.ndarray, np.ndarray]:
+    """The object's coloured point cloud: points (P, 3) camera frame and colours (P, 3) in [0, 1]."""
+    rng = rng if rng is not None else np.random.default_rng(0)
+    d = np.nan_to_num(frame.depth_m, nan=0.0)
+    ys, xs = np.nonzero(mask & (d > 0))
+    if len(xs) > max_points:
+        pick = rng.choice(len(xs), max_points, replace=False)
+        ys, xs = ys[pick], xs[pick]
+    pts = rays(np.column_stack([xs, ys]).astype(float), frame.camera.K) * d[ys, xs, None]
+    return pts, frame.rgb[ys, xs] / 255.0
+
+
+def views(path: Path, title: str, cloud: tuple[np.ndarray, np.ndarray], meshes: dict[str, tuple]) -> None:
+    """Rows: front, top, 45° pan; columns: the input cloud, then each mesh (vertices, faces)."""
+    cols = 1 + len(meshes)
+    fig = plt.figure(figsize=(3.0 * cols, 8.4))
+    pts, colours = cloud
+    P = _to_plot(pts)
+    lo, hi = P.min(axis=0), P.max(axis=0)
+    centre, half = (lo + hi) / 2, (hi - lo).max() / 2 * 1.1
+    for r, (view, (elev, azim)) in enumerate(VIEWS.items()):
+        for c in range(cols):
+            ax = fig.add_subplot(3, cols, r * cols + c + 1, projection="3d")
+            if c == 0:
+                ax.scatter(P[:, 0], P[:, 1], P[:, 2], c=colours, s=0.5, depthshade=False)
+                name = "input point cloud"
+            else:
+                name, (V, faces) = list(meshes.items())[c - 1]
+                Vp = _to_plot(V)
+                e = unique_edges(faces)
+                ax.add_collection3d(Line3DCollection(np.stack([Vp[e[:, 0]], Vp[e[:, 1]]], axis=1), colors="k",
+                                                     linewidths=0.3))
+            for setter, k in ((ax.set_xlim, 0), (ax.set_ylim, 1), (ax.set_zlim, 2)):
+                setter(centre[k] - half, centre[k] + half)
+            ax.view_init(elev=elev, azim=azim)
+            ax.set_box_aspect((1, 1, 1))
+            ax.set_axis_off()
+            if r == 0:
+                ax.set_title(name, fontsize=9)
+        fig.text(0.005, 1 - (r + 0.5) / 3, view, rotation=90, va="center", fontsize=9)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def overlay_strip(path: Path, frames: list, estimates: list, picks: list[int]) -> None:
+    """The mesh drawn over the RGB frames ``picks`` side by side (the paper's Fig. 6, top row)."""
+    tiles = [draw_mesh(frames[i].rgb, estimates[i], frames[i].camera.K) for i in picks]
+    h = 240
+    tiles = [cv2.resize(t, (int(t.shape[1] * h / t.shape[0]), h), interpolation=cv2.INTER_AREA) for t in tiles]
+    strip = np.concatenate(tiles, axis=1)
+    cv2.imwrite(str(path), cv2.cvtColor(strip, cv2.COLOR_RGB2BGR))
