@@ -58,14 +58,14 @@ class Limits:
     max_message_bytes : all frames of one message together, bytes
     max_array_bytes : one declared array (product of its shape times item size), bytes
     max_frames : frames in one message, header included
-    max_string_bytes : one string field, UTF-8 bytes
+    max_string_chars : one string field, characters
     max_items : entries of one msgpack array or map (lists, dicts, shapes)
     """
 
     max_message_bytes: int = 64 * 2**20
     max_array_bytes: int = 64 * 2**20
     max_frames: int = 32
-    max_string_bytes: int = 64 * 2**10
+    max_string_chars: int = 64 * 2**10
     max_items: int = 100_000
 
     def __post_init__(self):
@@ -217,8 +217,8 @@ class _Str(_Spec):
     def decode(self, obj, inp, where):
         if not isinstance(obj, str):
             raise ProtocolError(f"{where}: expected a string, got {type(obj).__name__}")
-        if len(obj) > inp.limits.max_string_bytes:
-            raise ProtocolError(f"{where}: string of {len(obj)} characters exceeds the limit of {inp.limits.max_string_bytes}")
+        if len(obj) > inp.limits.max_string_chars:
+            raise ProtocolError(f"{where}: string of {len(obj)} characters exceeds the limit of {inp.limits.max_string_chars}")
         return obj
 
 

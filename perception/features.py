@@ -24,7 +24,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from perception.camera import project
-from perception.raster import locate_pixels
+from perception.raster import bounding_box, locate_pixels
 
 log = logging.getLogger(__name__)
 
@@ -84,14 +84,10 @@ class Detector:
 
     def detect(self, grey: np.ndarray, mask: np.ndarray) -> Keypoints:
         empty = Keypoints(np.zeros((0, 2), np.float32), np.zeros((0, 32 if self.binary else 64), np.uint8 if self.binary else np.float32), self.binary)
-        ys, xs = np.nonzero(mask)
-        if len(xs) == 0:
+        box = bounding_box(mask, pad=16)  # detect in the object's box only: most of a frame is background
+        if box is None:
             return empty
-        # Detect in the object's bounding box only: most of a frame is background.
-        x0, x1, y0, y1 = xs.min(), xs.max() + 1, ys.min(), ys.max() + 1
-        pad = 16
-        x0, y0 = max(0, x0 - pad), max(0, y0 - pad)
-        x1, y1 = min(grey.shape[1], x1 + pad), min(grey.shape[0], y1 + pad)
+        y0, y1, x0, x1 = box
         roi_mask = mask[y0:y1, x0:x1].astype(np.uint8) * 255
         kps, desc = self._cv.detectAndCompute(np.ascontiguousarray(grey[y0:y1, x0:x1]), roi_mask)
         if desc is None or len(kps) == 0:
@@ -254,7 +250,7 @@ class KLTCorrespondences:
         self.xy: np.ndarray | None = None
         self._grey = None
         self._target = 0
-        self._lk = dict(winSize=(21, 21), maxLevel=3,
+        self._lk = dict(winSize=(15, 15), maxLevel=3,
                         criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
 
     @property

@@ -16,6 +16,7 @@ import numpy as np
 
 from ipc.messages import RGBDFrame
 from perception.camera import backproject, pixel_index, rays
+from perception.raster import bounding_box
 from perception.segmentation import outline, valid_depth
 
 
@@ -52,12 +53,10 @@ def smooth_depth_in_mask(depth_m: np.ndarray, mask: np.ndarray, window_px: int) 
     into the background. returns (H, W) float32, 0 off the mask or where nothing was measured.
     """
     out = np.zeros(depth_m.shape, np.float32)
-    ys, xs = np.nonzero(mask)
-    if len(xs) == 0:
+    box = bounding_box(mask, pad=window_px // 2 + 1)
+    if box is None:
         return out
-    r = window_px // 2 + 1
-    y0, y1 = max(0, ys.min() - r), min(mask.shape[0], ys.max() + r + 1)
-    x0, x1 = max(0, xs.min() - r), min(mask.shape[1], xs.max() + r + 1)
+    y0, y1, x0, x1 = box
     d = depth_m[y0:y1, x0:x1]
     m = mask[y0:y1, x0:x1] & valid_depth(d)
     if window_px <= 1:
@@ -87,10 +86,9 @@ def observe(frame: RGBDFrame, mask: np.ndarray, window_px: int = 5, occlusion_ma
     depth = smooth_depth_in_mask(frame.depth_m, mask, window_px)
     h, w = depth.shape
     rng = depth * _ray_norms(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), w, h)
-    ys, xs = np.nonzero(mask)
-    if len(xs):  # the outline lies within the mask's bounding box (plus one pixel for neighbours)
-        y0, y1 = max(0, ys.min() - 1), min(h, ys.max() + 2)
-        x0, x1 = max(0, xs.min() - 1), min(w, xs.max() + 2)
+    box = bounding_box(mask, pad=1)  # the outline lies in the mask's box (plus one pixel for neighbours)
+    if box is not None:
+        y0, y1, x0, x1 = box
         oy, ox = np.nonzero(outline(mask[y0:y1, x0:x1], frame.depth_m[y0:y1, x0:x1], occlusion_margin_m))
         oy, ox = oy + y0, ox + x0
     else:

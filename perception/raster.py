@@ -11,6 +11,17 @@ import numpy as np
 from perception.mesh import barycentric_2d
 
 
+def bounding_box(mask: np.ndarray, pad: int = 0):
+    """(y0, y1, x0, x1) half-open box around the True pixels of ``mask``, grown by ``pad`` and
+    clipped to the image; None when the mask is empty. Cheaper than np.nonzero on a full frame."""
+    rows = np.flatnonzero(mask.any(axis=1))
+    if len(rows) == 0:
+        return None
+    cols = np.flatnonzero(mask.any(axis=0))
+    h, w = mask.shape
+    return (max(0, rows[0] - pad), min(h, rows[-1] + 1 + pad), max(0, cols[0] - pad), min(w, cols[-1] + 1 + pad))
+
+
 def _pixel_triangles(uv: np.ndarray, faces: np.ndarray, shape) -> tuple[np.ndarray, np.ndarray]:
     """Integer triangles (K, 3, 2) of the faces whose corners are all finite, and their ids (K,)."""
     h, w = shape

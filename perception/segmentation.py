@@ -19,6 +19,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from perception.raster import bounding_box
+
 log = logging.getLogger(__name__)
 
 
@@ -87,14 +89,12 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
     returns (H, W) bool; empty when nothing of the object is seen
     """
     out = np.zeros(predicted_mask.shape, bool)
-    ys, xs = np.nonzero(predicted_mask)
-    if len(xs) == 0:
-        return out
     # Work in the prediction's bounding box grown by the search margin: the rest of the
     # image cannot hold the object.
-    m = cfg.search_margin_px + 1
-    y0, y1 = max(0, ys.min() - m), min(out.shape[0], ys.max() + m + 1)
-    x0, x1 = max(0, xs.min() - m), min(out.shape[1], xs.max() + m + 1)
+    box = bounding_box(predicted_mask, pad=cfg.search_margin_px + 1)
+    if box is None:
+        return out
+    y0, y1, x0, x1 = box
     pred = predicted_mask[y0:y1, x0:x1]
     depth = depth_m[y0:y1, x0:x1]
     valid = valid_depth(depth)

@@ -338,7 +338,7 @@ def test_limits_are_checked_before_decoding():
     with pytest.raises(ProtocolError, match=r"RGBDFrame\.rgb: declared shape \[3, 4, 3\] needs 36 bytes, over the limit of 20"):
         decode(frames, Limits(max_array_bytes=20))
     with pytest.raises(ProtocolError, match=r"Heartbeat\.source: string of 10 characters exceeds the limit of 4"):
-        decode(encode(EXAMPLES[m.Heartbeat]), Limits(max_string_bytes=4))
+        decode(encode(EXAMPLES[m.Heartbeat]), Limits(max_string_chars=4))
     with pytest.raises(ProtocolError, match="not valid msgpack"):
         decode(encode(EXAMPLES[m.GraspPlanReply]), Limits(max_items=1))
     with pytest.raises(ValueError, match=r"Limits\.max_frames: expected a positive integer, got 0"):
