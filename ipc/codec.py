@@ -135,7 +135,7 @@ class _In:
 
 
 class _Spec:
-    wire: str = ""  # the wire type, as docs/protocol.md names it
+    """How one field travels: ``encode`` gives the msgpack value, ``decode`` checks and reverses it."""
 
     def encode(self, value, out: _Out, where: str):
         raise NotImplementedError
@@ -145,7 +145,7 @@ class _Spec:
 
 
 class _Int(_Spec):
-    wire = "int"
+    """An integer in [lo, hi] (at most int64); msgpack int of any width, never bool."""
 
     def __init__(self, lo: int = _INT64_MIN, hi: int = _INT64_MAX):
         self.lo, self.hi = lo, hi
@@ -167,8 +167,6 @@ class _Int(_Spec):
 
 class _Float(_Spec):
     """A finite number; msgpack float 32/64 or int on the wire, Python float in memory."""
-
-    wire = "float"
 
     def __init__(self, lo: float | None = None, positive: bool = False):
         self.lo, self.positive = lo, positive
@@ -193,7 +191,7 @@ class _Float(_Spec):
 
 
 class _Bool(_Spec):
-    wire = "bool"
+    """msgpack bool."""
 
     def encode(self, value, out, where):
         if not isinstance(value, (bool, np.bool_)):
@@ -207,7 +205,7 @@ class _Bool(_Spec):
 
 
 class _Str(_Spec):
-    wire = "str"
+    """msgpack str (UTF-8), at most ``Limits.max_string_chars`` characters."""
 
     def encode(self, value, out, where):
         if not isinstance(value, str):
@@ -225,7 +223,6 @@ class _Str(_Spec):
 class _Scalar(_Spec):
     """A parameter value: bool, int (int64), finite float or str, each kept as its type."""
 
-    wire = "bool | int | float | str"
     _int, _float, _bool, _str = _Int(), _Float(), _Bool(), _Str()
 
     def _pick(self, value, where) -> _Spec:
@@ -251,7 +248,6 @@ class _Optional(_Spec):
 
     def __init__(self, inner: _Spec):
         self.inner = inner
-        self.wire = f"{inner.wire} | nil"
 
     def encode(self, value, out, where):
         return None if value is None else self.inner.encode(value, out, where)
@@ -265,7 +261,6 @@ class _List(_Spec):
 
     def __init__(self, item: _Spec):
         self.item = item
-        self.wire = f"array of {item.wire}"
 
     def encode(self, value, out, where):
         return [self.item.encode(v, out, f"{where}[{i}]") for i, v in enumerate(value)]
@@ -281,7 +276,6 @@ class _Map(_Spec):
 
     def __init__(self, value: _Spec):
         self.value = value
-        self.wire = f"map str -> {value.wire}"
 
     def encode(self, value, out, where):
         if not isinstance(value, dict):
@@ -306,7 +300,6 @@ class _Array(_Spec):
 
     def __init__(self, dtypes: tuple[str, ...], ndim: int):
         self.dtypes, self.ndim = dtypes, ndim
-        self.wire = f"array map ({' | '.join(dtypes)}, {ndim}-D)"
 
     def encode(self, value, out, where):
         arr = np.asarray(value)
@@ -369,8 +362,6 @@ class _Message(_Spec):
     to_wire : optional, message -> dict of the values to encode (for wire-only fields)
     from_wire : optional, (decoded fields, where) -> constructor keyword arguments
     """
-
-    wire = "map"
 
     def __init__(self, cls: type, fields: dict[str, _Spec], to_wire: Callable | None = None, from_wire: Callable | None = None):
         self.cls, self.fields = cls, fields

@@ -9,6 +9,7 @@ is placed the same way, centred on the object and aligned with its principal axe
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from perception.camera import pixel_index, project, rays
@@ -49,21 +50,38 @@ def object_frame(points: np.ndarray):
     return c, u, v, n
 
 
-def lift(points_plane: np.ndarray, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
+def lift(points_plane: np.ndarray, obs: Observation, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Move points onto the measured surface along their camera rays.
 
     points_plane : (N, 3) camera-frame points (on the fitted plane)
+    mask : (H, W) bool deciding which points are on the object (default: the observation's)
     returns (lifted (N, 3), on_object (N,) bool); points without depth stay where they were
     """
     uv = project(points_plane, obs.K)
     h, w = obs.mask.shape
     cols, rows, inside = pixel_index(uv, w, h)
     d = np.where(inside, obs.depth_m[rows, cols], 0.0).astype(np.float64)
-    on = inside & obs.mask[rows, cols]
+    on = inside & (obs.mask if mask is None else mask)[rows, cols]
     has = on & (d > 0)
     lifted = points_plane.copy()
     lifted[has] = rays(uv[has], obs.K) * d[has, None]
     return lifted, on
+
+
+def solid_mask(mask: np.ndarray, close_px: int) -> np.ndarray:
+    """The object mask without the gaps that missing depth leaves in it.
+
+    Enclosed holes are filled and notches narrower than ``close_px`` closed: in a first
+    frame they are almost always depth dropouts, and a mesh with holes there would keep
+    them for the whole sequence.
+    """
+    m = mask.astype(np.uint8)
+    if close_px >= 3:
+        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (close_px | 1, close_px | 1))
+        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, k)
+    padded = np.pad(m, 1)
+    cv2.floodFill(padded, None, (0, 0), 2)  # everything reachable from outside
+    return (padded[1:-1, 1:-1] != 2)
 
 
 def mesh_from_mask(obs: Observation, spacing_m: float) -> tuple[CanonicalMesh, np.ndarray]:
@@ -77,7 +95,8 @@ def mesh_from_mask(obs: Observation, spacing_m: float) -> tuple[CanonicalMesh, n
     lat = lattice_covering((pu.min(), pu.max()), (pv.min(), pv.max()), spacing_m)
     xy = lattice_to_xy(lat, spacing_m)
     on_plane = c + xy[:, :1] * u + xy[:, 1:] * v
-    _, on = lift(on_plane, obs)
+    spacing_px = obs.K[0, 0] * spacing_m / float(np.median(pts[:, 2]))
+    _, on = lift(on_plane, obs, solid_mask(obs.mask, int(round(spacing_px))))
     try:
         mesh = mesh_from_lattice(lat[on], spacing_m)
     except ValueError as e:

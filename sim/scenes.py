@@ -72,6 +72,7 @@ class SceneSpec:
         positions are those of the grasp vertices
     camera : CameraInfo; T_world_cam : (4, 4) optical frame to world
     settle_s : simulated time before frame 0, grippers still, so the cloth hangs at rest
+    timestep_s : physics step, a whole fraction of the 1/30 s frame period
     """
 
     name: str
@@ -85,6 +86,7 @@ class SceneSpec:
     camera: CameraInfo
     T_world_cam: np.ndarray
     settle_s: float = 1.0
+    timestep_s: float = 1.0 / 240.0
     lighting: Lighting = field(default_factory=Lighting)
 
 
@@ -337,7 +339,7 @@ class ClothScene:
         self._noise_rng = np.random.default_rng(noise_seq)
         self.close()
         spec = self.spec
-        self.physics = ClothPhysics(timestep_s=1.0 / 240.0)
+        self.physics = ClothPhysics(timestep_s=spec.timestep_s)
         self.body_ids = {}
         for i, box in enumerate(spec.boxes):
             self.body_ids[f"box{i}"] = self.physics.add_box(box.half_extents_m, box.position, box.quat_xyzw, box.rgba)

@@ -100,6 +100,7 @@ def test_slow_consumer_gets_the_newest_frame_and_memory_stays_bounded():
         assert peak < 150 * 2**20, f"memory grew by {peak / 2**20:.0f} MiB"
 
 
+# Publishes frames at 50 Hz until killed; each frame's timestamp_s is the process's generation.
 PUBLISHER_SCRIPT = """
 import dataclasses, sys, time
 from ipc.examples import example_messages
@@ -110,15 +111,16 @@ with Publisher(sys.argv[1], source="frames", heartbeat_period_s=0.1) as pub:
     print(pub.endpoint, flush=True)
     seq = 0
     while True:
-        pub.publish(dataclasses.replace(frame, seq=seq))
+        pub.publish(dataclasses.replace(frame, seq=seq, timestamp_s=float(sys.argv[2])))
         seq += 1
         time.sleep(0.02)
 """
 
 
-def start_publisher(endpoint: str) -> tuple[subprocess.Popen, str]:
+def start_publisher(endpoint: str, generation: int) -> tuple[subprocess.Popen, str]:
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen([sys.executable, "-c", PUBLISHER_SCRIPT, endpoint], stdout=subprocess.PIPE, text=True, cwd=REPO, env=env)
+    command = [sys.executable, "-c", PUBLISHER_SCRIPT, endpoint, str(generation)]
+    proc = subprocess.Popen(command, stdout=subprocess.PIPE, text=True, cwd=REPO, env=env)
     line = proc.stdout.readline().strip()  # the endpoint actually bound, once it is bound
     assert line.startswith("tcp://"), f"publisher did not start: {line!r}"
     return proc, line
@@ -127,12 +129,13 @@ def start_publisher(endpoint: str) -> tuple[subprocess.Popen, str]:
 def test_publisher_killed_and_restarted(caplog):
     caplog.set_level(logging.INFO, logger="ipc.transport")
     events = []
-    proc, endpoint = start_publisher(ANY_PORT)
+    proc, endpoint = start_publisher(ANY_PORT, generation=1)
     try:
         with Subscriber(endpoint, stale_after_s=0.5, on_liveness=lambda alive, s: events.append((alive, s))) as sub:
             first = sub.recv_latest(timeout_s=10.0)
-            assert first is not None
-            assert wait_until(lambda: sub.last_heartbeat is not None and sub.last_heartbeat.seq >= 3, 5.0)
+            assert first is not None and first.timestamp_s == 1.0
+            # Ten heartbeats, so that the new process's first ones have a smaller seq.
+            assert wait_until(lambda: sub.last_heartbeat is not None and sub.last_heartbeat.seq >= 10, 5.0)
             proc.kill()
             proc.wait(timeout=5)
             assert wait_until(lambda: sub.stale, 3.0)
@@ -141,9 +144,9 @@ def test_publisher_killed_and_restarted(caplog):
             assert any(r.levelno == logging.WARNING and "no message from publisher 'frames'" in r.getMessage() for r in caplog.records)
             sub.recv_latest(timeout_s=0.01)  # drop a frame taken before the kill, if any
 
-            proc, _ = start_publisher(endpoint)
+            proc, _ = start_publisher(endpoint, generation=2)
             again = sub.recv_latest(timeout_s=10.0)
-            assert again is not None and again.seq < 20  # counted from 0 again by the new process
+            assert again is not None and again.timestamp_s == 2.0  # from the new process
             assert not sub.stale
             assert events[-1][0] is True and events[-1][1] > 0.5
             assert any("receiving again" in r.getMessage() for r in caplog.records)

@@ -212,3 +212,13 @@ def test_bad_input_messages(tex):
         TrackerConfig(alpha=0)
     with pytest.raises(ValueError, match="features"):
         TrackerConfig(features="harris")
+
+
+def test_depth_dropouts_in_first_frame_leave_no_hole_in_the_mesh(tex):
+    f0 = render(plane_points(UV, CENTRE, SIZE), tex, 0)
+    depth = f0.depth_m.copy()
+    depth[200:215, 300:315] = 0.0  # a dropout in the middle of the sheet
+    holed = RGBDFrame(f0.rgb, depth, CAM)
+    full = MeshTracker(TrackerConfig()).initialise(f0)
+    e = MeshTracker(TrackerConfig()).initialise(holed)
+    assert len(e.vertices) == len(full.vertices)
