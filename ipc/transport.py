@@ -610,6 +610,8 @@ class ReplyServer:
     def serve_once(self, timeout_s: float = 0.0) -> bool:
         """Answer at most one request, waiting up to ``timeout_s``; True if one was answered."""
         sock = self._socket.sock
+        if sock is None:
+            raise ValueError(f"{self.endpoint}: server is closed")
         if not sock.poll(int(1000 * timeout_s), zmq.POLLIN):
             return False
         try:

@@ -164,3 +164,7 @@ def test_bad_arguments_are_named():
         RequestClient("nonsense://x")
     with RequestClient("tcp://127.0.0.1:1") as client, pytest.raises(ValueError, match="encode: str is not a message type"):
         client.request("status please")
+    server = ReplyServer(ANY_PORT, HANDLERS)
+    server.close()
+    with pytest.raises(ValueError, match="server is closed"):
+        server.serve_once()

@@ -1,0 +1,89 @@
+"""Depth segmentation against floors, walls and a hand holding the cloth."""
+
+import numpy as np
+import pytest
+
+from ipc.messages import CameraInfo
+from perception.camera import rays
+from perception.segmentation import SegmentationConfig, find_object, outline, segment_tracked
+
+CAM = CameraInfo.from_fov(320, 240, np.deg2rad(50))
+K = CAM.K
+H, W = 240, 320
+
+
+def scene_depth(floor=True, wall=True, cloth=True, hand=False):
+    """Camera 1 m above a floor, looking level; a wall 2.2 m ahead; a cloth 1.3 m ahead.
+
+    returns depth (H, W) float32 and the true cloth mask
+    """
+    uu, vv = np.meshgrid(np.arange(W), np.arange(H))
+    r = rays(np.column_stack([uu.ravel(), vv.ravel()]).astype(float), K).reshape(H, W, 3)
+    depth = np.full((H, W), np.inf)
+    if wall:
+        depth = np.minimum(depth, 2.2)
+    if floor:  # plane y = 1.0 (1 m below the camera, y down)
+        with np.errstate(divide="ignore"):
+            t = np.where(r[..., 1] > 1e-6, 1.0 / r[..., 1], np.inf)
+        depth = np.minimum(depth, t)
+    cloth_mask = np.zeros((H, W), bool)
+    if cloth:  # a 0.6 x 0.5 m sheet hanging 1.3 m ahead, bottom edge 0.3 m above the floor
+        x, y = r[..., 0] * 1.3, r[..., 1] * 1.3
+        cloth_mask = (np.abs(x) < 0.3) & (y > 0.2) & (y < 0.7)
+        depth = np.where(cloth_mask, 1.3 + 0.03 * np.sin(8 * x), depth)
+    hand_mask = np.zeros((H, W), bool)
+    if hand:  # an arm reaching the top-left corner from above, 15 cm in front of the cloth
+        x, y = r[..., 0] * 1.15, r[..., 1] * 1.15
+        hand_mask = (np.abs(x + 0.28) < 0.05) & (y < 0.26)
+        depth = np.where(hand_mask, 1.15, depth)
+        cloth_mask &= ~hand_mask
+    depth = np.where(np.isfinite(depth), depth, 0.0).astype(np.float32)
+    return depth, cloth_mask, hand_mask
+
+
+def iou(a, b):
+    return (a & b).sum() / max(1, (a | b).sum())
+
+
+@pytest.mark.parametrize("floor,wall", [(True, True), (True, False), (False, True), (False, False)])
+def test_find_object_ignores_floor_and_wall(floor, wall):
+    depth, truth, _ = scene_depth(floor, wall)
+    mask = find_object(depth, K, SegmentationConfig(), np.random.default_rng(0))
+    assert iou(mask, truth) > 0.95
+
+
+def test_find_object_on_empty_scene_is_empty():
+    depth, _, _ = scene_depth(cloth=False)
+    assert not find_object(depth, K).any() or find_object(depth, K).sum() < 0.02 * H * W
+    assert not find_object(np.zeros((H, W), np.float32), K).any()
+
+
+def test_tracked_segmentation_cuts_off_the_hand_and_background():
+    depth, truth, hand = scene_depth(hand=True)
+    predicted = np.roll(truth | hand, 4, axis=1)  # last frame's mesh, a few pixels off
+    predicted &= ~hand  # the mesh is the cloth only
+    mask = segment_tracked(depth, predicted, (1.25, 1.35), SegmentationConfig())
+    assert iou(mask, truth) > 0.95
+    # the hand (15 cm nearer, a depth jump) joins only as far as the search margin allows
+    assert (mask & hand).sum() < 0.2 * hand.sum()
+
+
+def test_tracked_segmentation_empty_when_object_gone():
+    depth, truth, _ = scene_depth(cloth=False)
+    _, predicted, _ = scene_depth()
+    assert not segment_tracked(depth, predicted, (1.25, 1.35)).any()
+
+
+def test_outline_skips_occluding_contour_and_image_border():
+    depth, truth, hand = scene_depth(hand=True)
+    out = outline(truth, depth)
+    # pixels of the cloth next to the (nearer) hand are not outline
+    near_hand = truth & np.roll(hand, 1, axis=0)
+    solid = truth | hand  # away from the cloth's side edges, where the wall is a real outline
+    near_hand &= np.roll(solid, 1, axis=1) & np.roll(solid, -1, axis=1)
+    assert near_hand.sum() > 5
+    assert not (out & near_hand).any()
+    assert out[truth].sum() > 0
+    # a mask touching the image border has no outline along the border
+    full = np.ones((H, W), bool)
+    assert not outline(full, np.ones((H, W), np.float32)).any()
