@@ -14,7 +14,7 @@ from sim.camera_model import (
     transform_points,
     view_matrix,
 )
-from sim.cloth_mesh import rectangle_mesh
+from sim.cloth_mesh import boundary_vertices, rectangle_mesh
 from sim.physics import ClothMaterial, ClothPhysics
 from sim.scenes import kinect_camera
 
@@ -55,21 +55,23 @@ def test_depth_from_zbuffer_inverts_the_opengl_depth():
 
 @pytest.mark.parametrize("cx, cy", [(32.0, 23.0), (27.3, 20.6)])
 def test_pybullet_draws_edges_where_K_projects_them(cx, cy):
-    """A box edge at sub-pixel image position u first covers column ceil(u), also off-centre."""
+    """A box edge at sub-pixel image position u first covers column ceil(u), also off-centre.
+
+    The box is 1 mm thick, so its side faces shift the edge by < 0.03 px here."""
     cam = CameraInfo(64, 48, np.array([[60.0, 0, cx], [0, 60.0, cy], [0, 0, 1]]))
     camera = VirtualCamera(cam, look_at([0, 0, 0], [0, 1, 0]))
     with ClothPhysics() as physics:
-        box = physics.add_box([1.0, 0.01, 1.0], [10.0, 10.0, 10.0])
+        box = physics.add_box([1.0, 0.0005, 1.0], [10.0, 10.0, 10.0])
         for edge in (12.3, 30.4, 30.6, 51.7):
             # the box's left edge at image column `edge`, at 1 m depth
             x = (edge - cx) / 60.0
-            physics.pybullet.resetBasePositionAndOrientation(box, [x + 1.0, 1.01, 0.0], [0, 0, 0, 1],
+            physics.pybullet.resetBasePositionAndOrientation(box, [x + 1.0, 1.0005, 0.0], [0, 0, 0, 1],
                                                              physicsClientId=physics.client)
             ids = camera.render_rigid(physics).body_ids
             assert np.argmax(ids[24] == box) == int(np.ceil(edge))
         for edge in (10.3, 20.6, 35.2):
             y = (edge - cy) / 60.0  # the box's top edge at image row `edge`
-            physics.pybullet.resetBasePositionAndOrientation(box, [0.0, 1.01, -y - 1.0], [0, 0, 0, 1],
+            physics.pybullet.resetBasePositionAndOrientation(box, [0.0, 1.0005, -y - 1.0], [0, 0, 0, 1],
                                                              physicsClientId=physics.client)
             ids = camera.render_rigid(physics).body_ids
             assert np.argmax(ids[:, 32] == box) == int(np.ceil(edge))
@@ -101,9 +103,11 @@ def test_projected_cloth_vertex_lands_on_its_depth(hanging):
     col = np.rint(uvw[:, 0] / uvw[:, 2]).astype(int)
     row = np.rint(uvw[:, 1] / uvw[:, 2]).astype(int)
     assert np.all((col >= 0) & (col < 640) & (row >= 0) & (row < 480))
+    # boundary vertices may round to a pixel just off the cloth; interior ones may not
+    interior = np.setdiff1d(np.arange(len(pts)), boundary_vertices(physics.cloth_mesh.faces))
     cloth = image.body_ids[row, col] == physics.cloth_id
-    assert cloth.mean() > 0.97, "a hanging cloth facing the camera sees (almost) all its vertices"
-    diff = np.abs(image.depth_m[row, col] - pts[:, 2])[cloth]
+    assert cloth[interior].all(), "a hanging cloth facing the camera sees all its vertices"
+    diff = np.abs(image.depth_m[row, col] - pts[:, 2])[interior]
     assert np.median(diff) < 0.001 and np.percentile(diff, 95) < 0.003
 
 

@@ -1,0 +1,92 @@
+"""The offline tracking command (DESIGN.md "Offline tracking command")."""
+
+import subprocess
+import sys
+
+import cv2
+import numpy as np
+import pytest
+
+from perception.sequence import SequenceWriter
+from perception.track import main
+from tests.render import frame_of, grid_surface, plane_points, texture
+from ipc.messages import CameraInfo
+
+CAM = CameraInfo.from_fov(320, 240, np.deg2rad(45))
+SIZE = (0.6, 0.45)
+UV, FACES = grid_surface(*SIZE, 21, 16)
+SHIFT = np.array([0.01, 0.0, 0.01])
+
+
+@pytest.fixture(scope="module")
+def seq(tmp_path_factory):
+    root = tmp_path_factory.mktemp("seq") / "SEQ"
+    tex = texture(np.random.default_rng(3))
+    with SequenceWriter(root, CAM) as w:
+        for k in range(4):
+            pts = plane_points(UV, np.array([0, 0, 1.3]) + k * SHIFT, SIZE)
+            w.write(frame_of(pts, UV, FACES, tex, CAM, SIZE, t=1.0 + k / 30, seq=k))
+    return root
+
+
+def test_writes_every_key_of_the_contract(seq, tmp_path):
+    out = tmp_path / "est.npz"
+    assert main([str(seq), "--output", str(out), "--quiet", "--overlay-dir", str(tmp_path / "ov"),
+                 "--ply-dir", str(tmp_path / "ply")]) == 0
+    est = np.load(out)
+    T, N = 4, est["canonical"].shape[0]
+    assert est["vertices"].shape == (T, N, 3) and est["vertices"].dtype == np.float32
+    assert est["faces"].shape[1] == 3 and est["faces"].max() < N
+    assert est["boundary"].ndim == 1 and est["boundary"].max() < N
+    assert est["canonical"].dtype == np.float32
+    np.testing.assert_allclose(est["timestamps"], 1.0 + np.arange(4) / 30, atol=1e-6)
+    assert est["timing_ms"].shape == (T,) and np.all(est["timing_ms"] > 0)
+    # the sheet moved by SHIFT each frame: the estimate follows
+    moved = est["vertices"][3] - est["vertices"][0]
+    np.testing.assert_allclose(moved.mean(axis=0), 3 * SHIFT, atol=0.003)
+    assert len(list((tmp_path / "ov").glob("*.png"))) == T
+    assert (tmp_path / "ply" / "000003.ply").read_text().startswith("ply")
+
+
+def test_init_mask_is_used(seq, tmp_path):
+    mask = np.zeros((240, 320), np.uint8)
+    mask[100:140, 130:190] = 255  # only part of the sheet: a smaller mesh
+    cv2.imwrite(str(tmp_path / "m.png"), mask)
+    full, part = tmp_path / "full.npz", tmp_path / "part.npz"
+    assert main([str(seq), "-o", str(full), "-q", "--max-frames", "1"]) == 0
+    assert main([str(seq), "-o", str(part), "-q", "--max-frames", "1", "--init-mask", str(tmp_path / "m.png")]) == 0
+    assert np.load(part)["vertices"].shape[1] < 0.5 * np.load(full)["vertices"].shape[1]
+
+
+@pytest.mark.parametrize("case,message", [
+    ("missing", "no such"),
+    ("mask_missing", "init mask"),
+    ("mask_empty", "empty"),
+    ("mask_size", "differs from the frames"),
+    ("mask_unreadable", "not a readable image"),
+])
+def test_bad_input_exits_2_with_one_line(seq, tmp_path, capsys, case, message):
+    args = [str(seq), "-o", str(tmp_path / "e.npz"), "-q"]
+    if case == "missing":
+        args[0] = str(tmp_path / "nowhere")
+    elif case == "mask_missing":
+        args += ["--init-mask", str(tmp_path / "nope.png")]
+    elif case == "mask_empty":
+        cv2.imwrite(str(tmp_path / "z.png"), np.zeros((240, 320), np.uint8))
+        args += ["--init-mask", str(tmp_path / "z.png")]
+    elif case == "mask_size":
+        cv2.imwrite(str(tmp_path / "s.png"), np.full((10, 10), 255, np.uint8))
+        args += ["--init-mask", str(tmp_path / "s.png")]
+    else:
+        (tmp_path / "bad.png").write_bytes(b"not a png")
+        args += ["--init-mask", str(tmp_path / "bad.png")]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error:") and message in err.lower() and "\n" not in err
+
+
+def test_command_line_has_no_traceback_for_user_mistakes(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "perception.track", str(tmp_path), "--output", str(tmp_path / "x.npz")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr and r.stderr.strip().count("\n") == 0
