@@ -1,4 +1,4 @@
-"""A small z-buffered software renderer of textured triangle meshes, for tests.
+"""Rendered RGB-D frames of textured sheets whose true shape is known, for tests.
 
 Tests build surfaces whose true shape is known exactly (a plane, a bent sheet), render
 them through a pinhole camera and check that the tracker recovers them.
@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from ipc.messages import CameraInfo, RGBDFrame
+from sim.raster import Shading, rasterise_mesh
 
 
 def grid_surface(width_m: float, height_m: float, n_u: int, n_v: int):
@@ -41,60 +42,20 @@ def texture(rng: np.random.Generator, size: int = 512, textured: bool = True) ->
 
 def render(points_cam: np.ndarray, uv: np.ndarray, faces: np.ndarray, tex: np.ndarray, camera: CameraInfo,
            size_m: tuple[float, float], background_m: float | None = 2.5) -> tuple[np.ndarray, np.ndarray]:
-    """Render a textured mesh.
+    """Render a textured mesh with the simulation's rasteriser, lit from the camera.
 
     points_cam : (P, 3) vertices in the camera frame; uv : (P, 2) material coords in metres
     size_m : (width, height) of the material rectangle the texture spans
     background_m : depth of a fronto-parallel grey wall behind, or None for no background
     returns rgb (H, W, 3) uint8 and depth (H, W) float32 metres (0 = nothing)
     """
-    h, w = camera.height, camera.width
-    K = camera.K
-    depth = np.full((h, w), np.inf)
-    tu = np.zeros((h, w))
-    tv = np.zeros((h, w))
-    z = points_cam[:, 2]
-    px = np.column_stack([K[0, 0] * points_cam[:, 0] / z + K[0, 2], K[1, 1] * points_cam[:, 1] / z + K[1, 2]])
-    for f in faces:
-        p = px[f]
-        x0, y0 = np.floor(p.min(axis=0)).astype(int)
-        x1, y1 = np.ceil(p.max(axis=0)).astype(int)
-        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, w - 1), min(y1, h - 1)
-        if x1 < x0 or y1 < y0:
-            continue
-        xs, ys = np.meshgrid(np.arange(x0, x1 + 1), np.arange(y0, y1 + 1))
-        a, b, c = p
-        det = (b[0] - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (b[1] - a[1])
-        if abs(det) < 1e-12:
-            continue
-        l1 = ((xs - a[0]) * (c[1] - a[1]) - (c[0] - a[0]) * (ys - a[1])) / det
-        l2 = ((b[0] - a[0]) * (ys - a[1]) - (xs - a[0]) * (b[1] - a[1])) / det
-        l0 = 1 - l1 - l2
-        inside = (l0 >= 0) & (l1 >= 0) & (l2 >= 0)
-        if not inside.any():
-            continue
-        # Perspective-correct interpolation: interpolate 1/z and attributes / z.
-        iz = l0 / z[f[0]] + l1 / z[f[1]] + l2 / z[f[2]]
-        zz = 1.0 / iz
-        sub = depth[y0 : y1 + 1, x0 : x1 + 1]
-        closer = inside & (zz < sub)
-        if not closer.any():
-            continue
-        wu = (l0 * uv[f[0], 0] / z[f[0]] + l1 * uv[f[1], 0] / z[f[1]] + l2 * uv[f[2], 0] / z[f[2]]) * zz
-        wv = (l0 * uv[f[0], 1] / z[f[0]] + l1 * uv[f[1], 1] / z[f[1]] + l2 * uv[f[2], 1] / z[f[2]]) * zz
-        sub[closer] = zz[closer]
-        tu[y0 : y1 + 1, x0 : x1 + 1][closer] = wu[closer]
-        tv[y0 : y1 + 1, x0 : x1 + 1][closer] = wv[closer]
-    hit = np.isfinite(depth)
-    ts = tex.shape[0]
-    ti = np.clip((tv / size_m[1] * (ts - 1)).astype(int), 0, ts - 1)
-    tj = np.clip((tu / size_m[0] * (ts - 1)).astype(int), 0, ts - 1)
-    rgb = np.full((h, w, 3), 90, np.uint8)
-    rgb[hit] = tex[ti[hit], tj[hit]]
-    out = np.where(hit, depth, 0.0).astype(np.float32)
+    st = np.column_stack([uv[:, 0] / size_m[0], 1.0 - uv[:, 1] / size_m[1]])  # OBJ: t up
+    out = rasterise_mesh(points_cam, faces, st, tex, camera, Shading(light_dir_cam=np.array([0.0, 0.0, -1.0])))
+    rgb = np.where(out.mask[..., None], out.rgb, np.uint8(90))
+    depth = out.depth_m.copy()
     if background_m is not None:
-        out[~hit] = background_m
-    return rgb, out
+        depth[~out.mask] = background_m
+    return rgb, depth
 
 
 def frame_of(points_cam, uv, faces, tex, camera, size_m, t=0.0, seq=0, noise_m: float = 0.0,
