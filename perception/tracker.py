@@ -191,8 +191,17 @@ class MeshTracker:
 
         mask : (H, W) bool or uint8 (non-zero on the object); found by depth segmentation if None
         mesh : an off-line canonical mesh (e.g. ``rectangle_mesh``); built from the mask if None
-        raises TrackingError with a one-line reason when the frame cannot carry a mesh
+        raises TrackingError with a one-line reason when the frame cannot carry a mesh; the
+        tracker then keeps the object it was tracking before
         """
+        saved = dict(self.__dict__)
+        try:
+            return self._initialise(frame, mask, mesh)
+        except Exception:
+            self.__dict__.update(saved)
+            raise
+
+    def _initialise(self, frame, mask, mesh) -> MeshEstimate:
         t0 = time.perf_counter()
         self.reset()
         frame = self._check_frame(frame)

@@ -186,9 +186,10 @@ def shirt_chair_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
     """A printed T-shirt held by the shoulders, carried over a chair's backrest and lowered.
 
     The shirt starts hanging in front of the backrest with its lower third below the
-    backrest's top. The holders move 0.25 m back over the backrest (0 to 1 s), then
-    down 0.35 m (1 to 2 s): the lower third lies over the front of the backrest and
-    the rest goes down behind it, hidden by the backrest and by the shirt's own front.
+    backrest's top. The holders move 0.28 m back over the backrest (0 to 1 s), then
+    down 0.6 m (1 to 2 s), the shoulders ending ~15 cm below the backrest's top: the
+    lower third lies over the front of the backrest and the rest goes down behind it,
+    hidden by the backrest and by the shirt's own front.
     """
     mesh = _shirt(rng)
     backrest_top = 0.90
@@ -206,8 +207,8 @@ def shirt_chair_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
     ) + tuple(Box((0.02, 0.02, 0.215), (x, y, 0.215), wood) for x in (-0.21, 0.21) for y in (0.02, 0.44))
 
     def offsets(t: float) -> list:
-        back = 0.25 * min(t / 1.0, 1.0)
-        down = 0.35 * np.clip((t - 1.0) / 1.0, 0.0, 1.0)
+        back = 0.28 * min(t / 1.0, 1.0)
+        down = 0.60 * np.clip((t - 1.0) / 1.0, 0.0, 1.0)
         return [((0.0, back, -down), 0.0)] * 2
 
     return SceneSpec(

@@ -201,7 +201,10 @@ def test_bad_input_messages(tex):
     nan_depth = RGBDFrame(f0.rgb, np.full_like(f0.depth_m, np.nan), CAM)
     with pytest.raises(TrackingError, match="pixels with depth"):
         tr.initialise(nan_depth, mask=np.ones((480, 640), bool))
-    tr.initialise(f0)
+    before = tr.initialise(f0).vertices
+    with pytest.raises(TrackingError, match="mask is empty"):
+        tr.initialise(f0, mask=np.zeros((480, 640), bool))
+    np.testing.assert_array_equal(tr.vertices, before)  # a failed initialise keeps the tracked object
     small = CameraInfo.from_fov(320, 240, np.deg2rad(45))
     other = RGBDFrame(np.zeros((240, 320, 3), np.uint8), np.ones((240, 320), np.float32), small)
     with pytest.raises(TrackingError, match="frame camera changed"):
