@@ -70,6 +70,14 @@ def markdown(results: dict, args) -> str:
             s = r.get(label)
             cells.append("n/a" if s is None else f"{s['mean_mm']:.1f} / {s['p95_mm']:.1f}")
         lines.append(f"| {name} | {noise} | {r['n_vertices']} | " + " | ".join(cells) + " |")
+    lines += ["", "Shape error alone (mean mm from each vertex to the nearest point of the true surface, "
+              "blind to sliding along it):", "",
+              "| scene | noise | " + " | ".join(labels) + " |",
+              "| --- | --- | " + " | ".join("---" for _ in labels) + " |"]
+    for key, r in results.items():
+        name, noise = key.rsplit("/", 1)
+        cells = [("n/a" if r.get(label) is None else f"{r[label]['surface_mean_mm']:.1f}") for label in labels]
+        lines.append(f"| {name} | {noise} | " + " | ".join(cells) + " |")
     lines += ["", "Median tracking time per frame (ms):", "",
               "| scene | noise | " + " | ".join(labels) + " |",
               "| --- | --- | " + " | ".join("---" for _ in labels) + " |"]

@@ -18,7 +18,7 @@ from tqdm import tqdm
 from ipc.messages import RGBDFrame
 from perception.cpd_baseline import CPDTracker
 from perception.tracker import MeshTracker, TrackerConfig
-from sim.ground_truth import error_summary, vertex_errors
+from sim.ground_truth import bind_to_surface, error_summary, surface_points, vertex_errors
 
 log = logging.getLogger(__name__)
 
@@ -60,8 +60,18 @@ class TrackRun:
         """(T, N) metres, the ground-truth error of every vertex in every frame."""
         return vertex_errors(self.vertices, rec.gt_vertices, rec.gt_faces)
 
+    def surface_distances(self, rec: SceneRecording) -> np.ndarray:
+        """(T, N) metres from each vertex to the nearest point of the true cloth surface:
+        the shape error alone, blind to vertices sliding along the surface."""
+        out = np.empty(self.vertices.shape[:2])
+        for t, (V, G) in enumerate(zip(self.vertices, rec.gt_vertices)):
+            tri, bary = bind_to_surface(V, G, rec.gt_faces)
+            out[t] = np.linalg.norm(V - surface_points(G, rec.gt_faces, tri, bary), axis=1)
+        return out
+
     def summary(self, rec: SceneRecording) -> dict:
         out = error_summary(self.errors(rec))
+        out["surface_mean_mm"] = float(1000 * self.surface_distances(rec).mean())
         out["median_ms"] = float(np.median(self.timing_ms[1:])) if len(self.timing_ms) > 1 else float("nan")
         out["lost_frames"] = int(self.lost.sum())
         return out
