@@ -257,14 +257,19 @@ class KLTCorrespondences:
     def n_model(self) -> int:
         return len(self.bound) if self.bound is not None else 0
 
-    def _seed(self, grey, mask, V, faces, K):
-        pts = cv2.goodFeaturesToTrack(grey, self.max_features, 0.01, 5, mask=mask.astype(np.uint8) * 255)
+    def _seed(self, grey, mask, V, faces, K, count: int, keep_away: np.ndarray | None = None):
+        """Find and bind up to ``count`` new corners in ``mask``, 5 px or more from ``keep_away`` (P, 2)."""
+        allowed = mask.astype(np.uint8) * 255
+        if keep_away is not None:
+            for u, v in np.rint(keep_away).astype(int):
+                cv2.circle(allowed, (int(u), int(v)), 5, 0, -1)
+        pts = cv2.goodFeaturesToTrack(grey, max(1, count), 0.01, 5, mask=allowed)
         xy = np.zeros((0, 2), np.float32) if pts is None else pts.reshape(-1, 2).astype(np.float32)
         kp = Keypoints(xy, np.zeros((len(xy), 0), np.float32), False)
         return bind(kp, V, faces, K, grey.shape)
 
     def initialise(self, grey, mask, V, faces, K):
-        self.bound = self._seed(grey, mask, V, faces, K)
+        self.bound = self._seed(grey, mask, V, faces, K, self.max_features)
         self.xy = self.bound.keypoints.xy.copy()
         self._target = len(self.bound)
         self._grey = grey
@@ -294,7 +299,7 @@ class KLTCorrespondences:
     def update(self, grey, mask, V, faces, K):
         self._grey = grey
         if self.bound is not None and len(self.bound) < 0.5 * self._target:
-            fresh = self._seed(grey, mask, V, faces, K)
+            fresh = self._seed(grey, mask, V, faces, K, self.max_features - len(self.bound), keep_away=self.xy)
             self.bound = BoundFeatures(
                 Keypoints(np.concatenate([self.bound.keypoints.xy, fresh.keypoints.xy]),
                           np.zeros((len(self.bound) + len(fresh), 0), np.float32), False),
