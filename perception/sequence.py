@@ -292,9 +292,9 @@ def open_sequence(path) -> Sequence:
     root = Path(path)
     if not root.is_dir():
         raise SequenceError(f"{root}: not a directory" if root.exists() else f"{root}: no such directory")
-    camera, depth_scale = read_intrinsics(root / INTRINSICS_FILE)
     rgb_stamps, rgb_rel = read_file_list(root / "rgb.txt")
     depth_stamps, depth_rel = read_file_list(root / "depth.txt")
+    camera, depth_scale = read_intrinsics(root / INTRINSICS_FILE)
     pairs = associate(rgb_stamps, depth_stamps)
     if len(pairs) == 0:
         raise SequenceError(f"{root}: no rgb/depth pairs within {MAX_TIME_DIFFERENCE_S} s "
@@ -344,7 +344,7 @@ class SequenceWriter:
         self._closed = False
         self._clipped = 0
 
-    def __enter__(self) -> "SequenceWriter":
+    def __enter__(self) -> SequenceWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:

@@ -1,1 +1,74 @@
-"""PyBullet cloth simulation, virtual RGB-D camera and ground truth."""
+"""PyBullet cloth simulation, virtual RGB-D camera and ground truth.
+
+- ``sim.scenes``: the paper's scenes (``SCENES``, ``make_scene``), each a ``ClothScene``
+  that steps, renders ``ipc.RGBDFrame`` and gives the true cloth in the camera frame.
+- ``sim.physics``: the PyBullet wrapper (``ClothPhysics``, ``Gripper``, ``ClothMaterial``).
+- ``sim.camera``: ``VirtualCamera`` (PyBullet for the rigid scene, ``sim.raster`` for the cloth).
+- ``sim.noise``: depth/colour sensor noise; ``sim.ground_truth``: the accuracy metric.
+- ``sim.cloth_mesh``, ``sim.textures``: cloth meshes and textures generated in code.
+- ``python -m sim.record``: write a scene as a sequence folder (``perception.sequence``).
+
+PyBullet is imported only when a ``ClothPhysics`` is created, so the pure parts
+(meshes, noise, ground truth) work without it.
+"""
+
+from sim.camera import Lighting, Render, VirtualCamera
+from sim.camera_model import (
+    camera_info_from_fov,
+    look_at,
+    projection_matrix,
+    view_matrix,
+)
+from sim.cloth_mesh import (
+    ClothMesh,
+    TShirtShape,
+    boundary_vertices,
+    edge_strain,
+    mesh_edges,
+    rectangle_mesh,
+    tshirt_mesh,
+)
+from sim.ground_truth import (
+    bind_to_surface,
+    error_summary,
+    surface_points,
+    vertex_errors,
+)
+from sim.noise import DepthNoiseModel, add_colour_noise, add_depth_noise
+from sim.physics import ClothMaterial, ClothPhysics, Gripper
+from sim.scenes import SCENES, ClothScene, SceneSpec, kinect_camera, make_scene
+from sim.textures import plain_texture, poster_texture
+
+__all__ = [
+    "SCENES",
+    "ClothMaterial",
+    "ClothMesh",
+    "ClothPhysics",
+    "ClothScene",
+    "DepthNoiseModel",
+    "Gripper",
+    "Lighting",
+    "Render",
+    "SceneSpec",
+    "TShirtShape",
+    "VirtualCamera",
+    "add_colour_noise",
+    "add_depth_noise",
+    "bind_to_surface",
+    "boundary_vertices",
+    "camera_info_from_fov",
+    "edge_strain",
+    "error_summary",
+    "kinect_camera",
+    "look_at",
+    "make_scene",
+    "mesh_edges",
+    "plain_texture",
+    "poster_texture",
+    "projection_matrix",
+    "rectangle_mesh",
+    "surface_points",
+    "tshirt_mesh",
+    "vertex_errors",
+    "view_matrix",
+]

@@ -5,7 +5,7 @@ texture on both sides, at the right depth (``tests/unit/test_sim_camera.py`` com
 with our rasteriser), but a 640x480 frame of a room costs ~150 ms, most of it spent on
 the walls and floor. The rigid scene rarely moves, so the camera renders it with
 PyBullet only when a visible rigid body has moved, and draws the cloth itself
-(``sim.raster``, ~10-20 ms) over that picture, z-buffered against its depth.
+(``sim.raster``, ~30 ms) over that picture, z-buffered against its depth.
 
 Images come out exact; sensor noise is added by the scene (``sim.noise``).
 """

@@ -165,20 +165,12 @@ def _grid_faces(cells_ij: np.ndarray, vertex_id: np.ndarray) -> np.ndarray:
     return np.concatenate([t1, t2])
 
 
-def _mesh_from_cells(inside: np.ndarray, spacing_u: float, spacing_v: float) -> tuple[np.ndarray, np.ndarray]:
-    """Triangulate the grid cells marked in ``inside`` (rows, cols) bool.
-
-    Returns (uv_m (V, 2), faces (F, 3)) with unused grid points removed.
-    """
-    rows, cols = inside.shape
-    cells = np.argwhere(inside)
+def _grid_mesh(rows: int, cols: int, spacing_u: float, spacing_v: float) -> tuple[np.ndarray, np.ndarray]:
+    """(uv_m (V, 2), faces (F, 3)) of a rows x cols grid of cells, vertices row by row from the top-left."""
     grid_id = np.arange((rows + 1) * (cols + 1)).reshape(rows + 1, cols + 1)
-    faces = _grid_faces(cells, grid_id)
-    used, faces = np.unique(faces, return_inverse=True)
-    faces = faces.reshape(-1, 3)
-    vi, vj = np.divmod(used, cols + 1)
-    uv = np.stack([vj * spacing_u, vi * spacing_v], axis=1).astype(np.float64)
-    return uv, faces
+    faces = _grid_faces(np.argwhere(np.ones((rows, cols), bool)), grid_id)
+    vi, vj = np.divmod(np.arange((rows + 1) * (cols + 1)), cols + 1)
+    return np.stack([vj * spacing_u, vi * spacing_v], axis=1).astype(np.float64), faces
 
 
 def _check_size(name: str, value: float, minimum: float) -> float:
@@ -199,9 +191,9 @@ def rectangle_mesh(width_m: float, height_m: float, spacing_m: float = 0.025) ->
     spacing_m = _check_size("rectangle_mesh: spacing_m", spacing_m, 1e-3)
     width_m = _check_size("rectangle_mesh: width_m", width_m, 2 * spacing_m)
     height_m = _check_size("rectangle_mesh: height_m", height_m, 2 * spacing_m)
-    cols = max(1, int(round(width_m / spacing_m)))
-    rows = max(1, int(round(height_m / spacing_m)))
-    uv, faces = _mesh_from_cells(np.ones((rows, cols), bool), width_m / cols, height_m / rows)
+    cols = max(1, round(width_m / spacing_m))
+    rows = max(1, round(height_m / spacing_m))
+    uv, faces = _grid_mesh(rows, cols, width_m / cols, height_m / rows)
     landmarks = {
         "top_left": _nearest(uv, (0.0, 0.0)),
         "top_right": _nearest(uv, (width_m, 0.0)),
@@ -231,7 +223,7 @@ class TShirtShape:
     neck_depth_m: float = 0.07
     shoulder_drop_m: float = 0.04
 
-    def scaled(self, factor: float) -> "TShirtShape":
+    def scaled(self, factor: float) -> TShirtShape:
         """The same shape with every length multiplied by ``factor``."""
         return TShirtShape(
             body_width_m=self.body_width_m * factor,

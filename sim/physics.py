@@ -4,9 +4,10 @@ This is the only module that steps PyBullet. It owns a DIRECT connection (no GUI
 any number of worlds can live in one process. Accessors return NumPy arrays in the
 world frame (z up, metres); scene logic (``sim.scenes``) stays outside.
 
-Cloth model: PyBullet's mass-spring soft body. Its deformable solver integrates the
-spring forces explicitly (only damping is implicit), so a spring stiffer than the node
-masses and time step allow explodes, and a soft one lets the cloth stretch like rubber.
+Cloth model: PyBullet's mass-spring soft body. Its deformable solver adds the spring
+forces explicitly (only damping is implicit), so a spring stiffer than the node masses
+and time step allow explodes (measured: see ``ClothMaterial``), and a soft one lets the
+cloth stretch like rubber.
 ``ClothMaterial.spring_stiffness`` therefore derives the stiffness from the node mass
 and time step (``stiffness_number`` = omega * dt of one spring on one node), and
 ``sim.cloth_mesh.edge_strain`` measures the stretch that results.
@@ -124,7 +125,7 @@ class Gripper:
     Create it with ``ClothPhysics.add_gripper``.
     """
 
-    def __init__(self, physics: "ClothPhysics", body_id: int, position: np.ndarray, quat_xyzw: np.ndarray):
+    def __init__(self, physics: ClothPhysics, body_id: int, position: np.ndarray, quat_xyzw: np.ndarray):
         self._physics = physics
         self.body_id = body_id
         self._position = position
@@ -165,9 +166,12 @@ class Gripper:
     def close_on(self, nodes) -> None:
         """Anchor cloth nodes to the gripper at their current positions.
 
-        nodes : (K,) int ids of cloth nodes (e.g. ``ClothPhysics.nodes_near``); nodes
-        already held are skipped
+        nodes : (K,) int ids of cloth nodes, e.g. those between the fingers:
+            ``ClothPhysics.nodes_near(fingertip_centre, half_opening_m)``; nodes already
+            held are skipped
         """
+        if self._physics.cloth_id is None:
+            raise ValueError("Gripper.close_on: no cloth in this world (call add_cloth first)")
         ids = np.unique(np.asarray(nodes, dtype=np.int64).ravel())
         n = self._physics.cloth_mesh.n_vertices
         if ids.size == 0:
@@ -228,7 +232,7 @@ class ClothPhysics:
         self.cloth_mesh: ClothMesh | None = None
         self.grippers: list[Gripper] = []
 
-    def __enter__(self) -> "ClothPhysics":
+    def __enter__(self) -> ClothPhysics:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -288,7 +292,6 @@ class ClothPhysics:
             springBendingStiffness=stiffness * material.bending_ratio,
             springDampingStiffness=material.damping(mesh, self.timestep_s),
             useSelfCollision=0,
-            useFaceContact=1,
             frictionCoeff=material.friction,
             physicsClientId=self.client,
         )
@@ -346,7 +349,7 @@ class ClothPhysics:
     def advance(self, duration_s: float) -> None:
         """Step the world for ``duration_s`` (rounded to whole steps), moving each gripper
         along a straight line to its ``move_to`` target, reached on the last step."""
-        n = int(round(duration_s / self.timestep_s))
+        n = round(float(duration_s) / self.timestep_s)
         if n < 0:
             raise ValueError(f"advance: expected a non-negative duration, got {duration_s}")
         p = self.pybullet

@@ -23,7 +23,7 @@ import numpy as np
 from tqdm import tqdm
 
 from perception.sequence import SequenceWriter
-from sim.scenes import SCENES, make_scene
+from sim.scenes import DEFAULT_FRAMES, FPS, SCENES, make_scene
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = _OneLineParser(prog="python -m sim.record", description=__doc__.split("\n\n")[0])
     parser.add_argument("scene", help="one of: " + ", ".join(sorted(SCENES)))
     parser.add_argument("out_dir", type=Path, help="folder to write (must not exist or be empty)")
-    parser.add_argument("--frames", type=_positive_int, default=60, help="number of frames (default 60, 2 s)")
+    parser.add_argument("--frames", type=_positive_int, default=DEFAULT_FRAMES,
+                        help=f"number of frames, 1/{FPS:g} s apart (default {DEFAULT_FRAMES})")
     parser.add_argument("--seed", type=_seed, default=0, help="scene and noise seed (default 0)")
     parser.add_argument("--no-noise", action="store_true", help="exact images, no sensor noise")
     parser.add_argument("--width", type=_positive_int, default=640, help="image width (default 640)")

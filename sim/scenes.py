@@ -24,8 +24,8 @@ The same seed gives the same frames; noise on or off does not change the scene.
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable
 
 import numpy as np
 
@@ -82,7 +82,7 @@ class SceneSpec:
     material: ClothMaterial
     boxes: tuple
     grasp_vertices: tuple
-    gripper_poses: Callable[[float], list]
+    gripper_poses: Callable[[float], list[Pose]]
     camera: CameraInfo
     T_world_cam: np.ndarray
     settle_s: float = 1.0
@@ -135,13 +135,13 @@ def _camera_pose(rng: np.random.Generator, eye, target) -> np.ndarray:
 def _texture_for(mesh: ClothMesh, rng: np.random.Generator, px_per_m: float = 900.0) -> np.ndarray:
     """A poster texture with the cloth's aspect ratio, ~2 texels per image pixel at ~1.2 m."""
     width, height = mesh.size_m
-    return poster_texture(rng, int(round(width * px_per_m)), int(round(height * px_per_m)),
+    return poster_texture(rng, round(width * px_per_m), round(height * px_per_m),
                           n_shapes=int(120 * width * height / 0.27), n_words=int(10 * width * height / 0.27))
 
 
-def _two_hand_script(start: list[np.ndarray], offsets: Callable[[float], list[tuple]]):
+def _two_hand_script(start: list[np.ndarray], offsets: Callable[[float], list[tuple]]) -> Callable[[float], list[Pose]]:
     """gripper_poses(t) from start positions and a function t -> [(offset (3,), yaw)] per gripper."""
-    def poses(t: float) -> list:
+    def poses(t: float) -> list[Pose]:
         return [(p0 + np.asarray(off, dtype=np.float64), _yaw_quat(yaw)) for p0, (off, yaw) in zip(start, offsets(t))]
     return poses
 
@@ -292,6 +292,12 @@ def towel_sway_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
     )
 
 
+def _check_seed(seed) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"ClothScene: expected a non-negative integer seed, got {seed!r}")
+    return int(seed)
+
+
 class ClothScene:
     """A scene running in PyBullet: physics, grippers following the script, camera, noise.
 
@@ -316,9 +322,10 @@ class ClothScene:
         self.camera = kinect_camera(width, height)
         self.fps = FPS
         self.physics: ClothPhysics | None = None
-        self.reset(seed)
+        self.seed = _check_seed(seed)
+        self.reset()
 
-    def __enter__(self) -> "ClothScene":
+    def __enter__(self) -> ClothScene:
         return self
 
     def __exit__(self, *exc) -> None:
@@ -332,18 +339,15 @@ class ClothScene:
     def reset(self, seed: int | None = None) -> None:
         """Rebuild the world from ``seed`` (default: the last seed) and settle it to frame 0."""
         if seed is not None:
-            if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-                raise ValueError(f"ClothScene.reset: expected a non-negative integer seed, got {seed!r}")
-            self.seed = int(seed)
+            self.seed = _check_seed(seed)
         scene_seq, noise_seq = np.random.SeedSequence(self.seed).spawn(2)
         self.spec = self._build(np.random.default_rng(scene_seq), self.camera)
         self._noise_rng = np.random.default_rng(noise_seq)
         self.close()
         spec = self.spec
         self.physics = ClothPhysics(timestep_s=spec.timestep_s)
-        self.body_ids = {}
-        for i, box in enumerate(spec.boxes):
-            self.body_ids[f"box{i}"] = self.physics.add_box(box.half_extents_m, box.position, box.quat_xyzw, box.rgba)
+        for box in spec.boxes:
+            self.physics.add_box(box.half_extents_m, box.position, box.quat_xyzw, box.rgba)
         self.cloth_id = self.physics.add_cloth(spec.cloth, spec.cloth_vertices_world, spec.material)
         for vertex in spec.grasp_vertices:
             at = spec.cloth_vertices_world[vertex]

@@ -28,8 +28,8 @@ def _tilted_wall(z0, angle_rad):
 
 def _quiet(**kw):
     """A model with only the effects a test names switched on."""
-    base = dict(sigma_base_m=0.0, sigma_quad_m=0.0, disparity_step_px=1e-6, shadow_px=0,
-                grazing_start_rad=np.pi, grazing_stop_rad=np.pi + 1, dropout_prob=0.0)
+    base = {"sigma_base_m": 0.0, "sigma_quad_m": 0.0, "disparity_step_px": 1e-6, "shadow_px": 0,
+            "grazing_start_rad": np.pi, "grazing_stop_rad": np.pi + 1, "dropout_prob": 0.0}
     base.update(kw)
     return DepthNoiseModel(**base)
 

@@ -115,7 +115,15 @@ def test_rigid_signature_changes_when_a_box_moves():
         physics.advance(0.05)
         assert physics.rigid_pose_signature() == before
         physics.pybullet.resetBasePositionAndOrientation(box, [0.1, 0, 1], [0, 0, 0, 1], physicsClientId=physics.client)
-        assert physics.rigid_pose_signature() != before
+        moved = physics.rigid_pose_signature()
+        assert moved != before
+        visible = physics.add_gripper([0.0, 0.0, 1.5], visual_half_extents_m=[0.02, 0.02, 0.05])
+        with_gripper = physics.rigid_pose_signature()
+        assert len(with_gripper) == 2
+        visible.move_to([0.0, 0.1, 1.5])
+        physics.advance(0.05)
+        after = physics.rigid_pose_signature()
+        assert after[0] == with_gripper[0] and after[1] != with_gripper[1], "a visible gripper is scenery"
 
 
 def test_material_derives_mass_and_springs_from_the_mesh():

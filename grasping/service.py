@@ -1,0 +1,171 @@
+"""The grasp planner service: the planner of ``grasping`` behind ZeroMQ sockets.
+
+Data flow (docs/protocol.md)::
+
+    perception --MeshEstimate (PUB)--> planner service <--GraspRequest (REQ)-- controller
+    frame source --RGBDFrame (PUB)---^  (optional)    --GraspPlanReply | ErrorReply-->
+
+Two layers, as the rest of the toolkit:
+
+- ``PlannerService`` holds the newest estimate (and the recent frames, for the
+  visibility term) and answers a ``GraspRequest`` with a ``GraspPlanReply`` (best
+  first) or an ``ErrorReply``: ``not_ready`` before any estimate has arrived,
+  ``invalid`` when the request asks only for kinds this service does not serve or
+  carries an estimate the planner cannot use. It knows nothing of sockets.
+- ``run_planner_service`` binds and connects the sockets (``ipc.transport``) and
+  drives a ``PlannerService`` until a stop event is set. Malformed requests are
+  answered by ``ReplyServer`` itself and never stop the loop.
+
+Frames: the plans are in the estimate's camera frame; ``GraspPlannerConfig`` holds
+``T_world_cam``, used for the workspace box and the up direction only.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import threading
+import time
+from collections import OrderedDict
+
+from grasping._planner import MODES, GraspPlanner, GraspPlannerConfig
+from ipc.messages import ErrorReply, GraspPlanReply, GraspRequest, MeshEstimate, RGBDFrame
+
+log = logging.getLogger(__name__)
+
+#: Frames kept to find the one an estimate was made from (the tracker lags the camera
+#: by a frame or two; 2 MB each at 640x480).
+FRAME_HISTORY = 8
+
+
+class PlannerService:
+    """Answers grasp requests from the newest estimate; no sockets (see the module docstring).
+
+    config : GraspPlannerConfig; its ``mode`` is ignored, the kinds come from each request
+    kinds : kinds this service serves, a subset of ``("corner", "boundary", "highest")``;
+        a request's kinds outside it are skipped, and a request with none inside it is
+        answered ``invalid``
+
+    A request plans on its own ``estimate`` when it carries one, else on the newest
+    estimate received (``on_estimate``). The visibility term is used when the frame the
+    estimate was made from (same ``seq`` and ``timestamp_s``) was received
+    (``on_frame``); otherwise the plan goes without it. Candidates of several kinds are
+    merged best first and cut to the request's ``max_candidates``.
+    """
+
+    def __init__(self, config: GraspPlannerConfig | None = None, kinds=MODES):
+        config = config if config is not None else GraspPlannerConfig()
+        kinds = tuple(kinds)
+        if not kinds or len(set(kinds)) != len(kinds) or any(k not in MODES for k in kinds):
+            raise ValueError(f"Expected kinds: distinct values among {MODES}, got {kinds!r}")
+        self.kinds = kinds
+        # One planner per kind: each caches its analysis of the canonical mesh.
+        self._planners = {k: GraspPlanner(dataclasses.replace(config, mode=k)) for k in kinds}
+        self.latest: MeshEstimate | None = None
+        self._frames: OrderedDict = OrderedDict()
+        self.requests = 0
+
+    def on_estimate(self, estimate: MeshEstimate) -> None:
+        """Keep ``estimate`` as the newest one."""
+        self.latest = estimate
+
+    def on_frame(self, frame: RGBDFrame) -> None:
+        """Remember ``frame`` (the last ``FRAME_HISTORY`` frames are kept)."""
+        self._frames[(frame.seq, frame.timestamp_s)] = frame
+        while len(self._frames) > FRAME_HISTORY:
+            self._frames.popitem(last=False)
+
+    def frame_for(self, estimate: MeshEstimate) -> RGBDFrame | None:
+        """The received frame ``estimate`` was made from, or None."""
+        frame = self._frames.get((estimate.seq, estimate.timestamp_s))
+        if frame is not None and frame.camera.frame_id != estimate.frame_id:
+            return None
+        return frame
+
+    def handle(self, request: GraspRequest):
+        """GraspPlanReply (candidates best first) or ErrorReply for one request.
+
+        Raises ValueError (answered ``invalid`` by ``ReplyServer``) for an estimate
+        the planner cannot use.
+        """
+        self.requests += 1
+        rid = request.request_id
+        wanted = tuple(k for k in request.kinds if k in self.kinds)
+        if not wanted:
+            return ErrorReply("invalid", f"this planner serves {', '.join(self.kinds)} grasps, "
+                                         f"not {', '.join(request.kinds)}", rid)
+        estimate = request.estimate if request.estimate is not None else self.latest
+        if estimate is None:
+            return ErrorReply("not_ready", "no mesh estimate received yet; retry later", rid)
+        frame = self.frame_for(estimate)
+        t0 = time.perf_counter()
+        plans = []
+        for k in wanted:
+            result = self._planners[k].plan(estimate, frame)
+            if not result:
+                log.info("request %d: no %s grasp on estimate %d: %s", rid, k, estimate.seq, result.reason)
+            plans.extend(result.plans)
+        # sorted() is stable: equal scores keep the planner's order and the request's kind order.
+        plans = sorted(plans, key=lambda p: -p.score)[: request.max_candidates]
+        log.info("request %d: %d candidate(s) on estimate %d (%s) in %.1f ms%s", rid, len(plans), estimate.seq,
+                 "+".join(wanted), 1000 * (time.perf_counter() - t0), "" if frame is not None else ", no frame")
+        return GraspPlanReply(request_id=rid, candidates=tuple(plans), estimate_seq=estimate.seq)
+
+
+def run_planner_service(
+    service: PlannerService,
+    *,
+    estimates_endpoint: str,
+    planner_endpoint: str,
+    frames_endpoint: str | None = None,
+    stop: threading.Event | None = None,
+    poll_s: float = 0.02,
+    on_bound=None,
+) -> None:
+    """Serve ``service`` on ZeroMQ until ``stop`` is set.
+
+    estimates_endpoint : the perception service's MeshEstimate publisher to connect to
+    planner_endpoint : where to bind the REP socket, e.g. ``ipc.endpoints.PLANNER`` or
+        ``tcp://127.0.0.1:*`` for a free port
+    frames_endpoint : a frame publisher to connect to for the visibility term, or None
+    stop : threading.Event; the loop checks it every ``poll_s`` seconds
+    on_bound : called with the planner endpoint actually bound, once serving
+
+    Raises ValueError (one line) when an endpoint cannot be bound or connected.
+    """
+    from ipc.transport import ReplyServer, Subscriber  # zmq only where sockets are made
+
+    stop = stop if stop is not None else threading.Event()
+    frames = None
+    with Subscriber(estimates_endpoint, accept=(MeshEstimate,)) as estimates:
+        try:
+            if frames_endpoint is not None:
+                frames = Subscriber(frames_endpoint, accept=(RGBDFrame,))
+
+            def drain() -> None:
+                # Take what arrived before answering, so a request sees the newest estimate.
+                if frames is not None:
+                    frame = frames.recv_latest(timeout_s=0)
+                    if frame is not None:
+                        service.on_frame(frame)
+                estimate = estimates.recv_latest(timeout_s=0)
+                if estimate is not None:
+                    service.on_estimate(estimate)
+
+            def handle(request: GraspRequest):
+                drain()
+                return service.handle(request)
+
+            with ReplyServer(planner_endpoint, {GraspRequest: handle}) as server:
+                log.info("planner service: estimates from %s, %sserving %s on %s", estimates_endpoint,
+                         f"frames from {frames_endpoint}, " if frames_endpoint else "", "/".join(service.kinds),
+                         server.endpoint)
+                if on_bound is not None:
+                    on_bound(server.endpoint)
+                while not stop.is_set():
+                    drain()
+                    server.serve_once(timeout_s=poll_s)
+        finally:
+            if frames is not None:
+                frames.close()
+    log.info("planner service stopped after %d request(s)", service.requests)

@@ -1,0 +1,87 @@
+"""Run the perception service: frames in, mesh estimates out, control requests answered.
+
+    python -m launch_scripts.perception_service [--frames EP] [--estimates EP] [--control EP]
+        [--preset {paper,realtime}] [--features KIND] [tracker options]
+        [--no-auto-init] [--reinit-after-lost N] [--viewer | --viewer-save FILE.rrd]
+
+Endpoints default to ipc.endpoints (loopback). The protocol and the service's states are
+in docs/protocol.md, section "Services". Ctrl-C or SIGTERM stops cleanly. Bad arguments
+end with exit status 2 and one line on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+import threading
+
+from ipc import endpoints
+from perception.features import FEATURE_KINDS
+from perception.service import PerceptionService, ServiceConfig
+from perception.track import config_from_args
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m launch_scripts.perception_service", description=__doc__.split("\n\n")[0])
+    g = p.add_argument_group("endpoints")
+    g.add_argument("--frames", default=endpoints.FRAMES, help=f"frame publisher to connect to (default {endpoints.FRAMES})")
+    g.add_argument("--estimates", default=endpoints.ESTIMATES, help=f"endpoint to publish estimates on (default {endpoints.ESTIMATES})")
+    g.add_argument("--control", default=endpoints.PERCEPTION_CONTROL,
+                   help=f"endpoint to answer control requests on (default {endpoints.PERCEPTION_CONTROL})")
+    g.add_argument("--print-endpoints", action="store_true",
+                   help='print {"frames": ..., "estimates": ..., "control": ...} as one JSON line once bound')
+    g = p.add_argument_group("behaviour")
+    g.add_argument("--no-auto-init", action="store_true",
+                   help="wait for an InitialiseRequest instead of initialising on the first frame")
+    g.add_argument("--reinit-after-lost", type=int, default=0, metavar="N",
+                   help="re-initialise after N consecutive lost or rejected frames (default 0: never)")
+    g.add_argument("--stale-after-s", type=float, default=3.0,
+                   help="seconds of silence after which the frame source counts as gone (default 3)")
+    g.add_argument("--viewer", action="store_true", help="show frames and meshes live in a Rerun viewer (rerun-sdk)")
+    g.add_argument("--viewer-save", metavar="FILE.rrd", help="save the Rerun recording to a file instead")
+    g.add_argument("--verbose", "-v", action="count", default=0, help="-v: info, -vv: debug logging")
+    # Same names and meanings as the offline command, python -m perception.track.
+    g = p.add_argument_group("tracker")
+    g.add_argument("--preset", choices=("paper", "realtime"), default="paper",
+                   help="paper: SIFT/SURF features (default); realtime: KLT, fewer iterations")
+    g.add_argument("--features", choices=FEATURE_KINDS, help="feature detector (overrides the preset)")
+    g.add_argument("--spacing-m", type=float, help="canonical mesh edge length, metres")
+    g.add_argument("--lambda-c", type=float, help="correspondence weight (paper: 1.3)")
+    g.add_argument("--lambda-d", type=float, help="depth weight (paper: 0.6)")
+    g.add_argument("--lambda-b", type=float, help="boundary weight (paper: 0.8)")
+    g.add_argument("--alpha", type=float, help="adaptation rate of the semi-implicit solver")
+    g.add_argument("--max-iterations", type=int, help="solver iterations per frame")
+    g.add_argument("--no-correspondence", action="store_true", help="switch the correspondence term off")
+    g.add_argument("--no-depth", action="store_true", help="switch the depth term off")
+    g.add_argument("--no-boundary", action="store_true", help="switch the boundary term off")
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)]
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+    viewer = "spawn" if args.viewer else args.viewer_save
+    try:
+        config = ServiceConfig(frames=args.frames, estimates=args.estimates, control=args.control,
+                               auto_init=not args.no_auto_init, reinit_after_lost=args.reinit_after_lost,
+                               stale_after_s=args.stale_after_s, viewer=viewer)
+        service = PerceptionService(config_from_args(args), config)
+    except (ValueError, RuntimeError, OSError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    with service:
+        if args.print_endpoints:
+            print(json.dumps(service.endpoints), flush=True)
+        service.run(stop)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,163 @@
+"""Start a whole perception pipeline on loopback: frame source -> perception service -> monitor.
+
+    python -m launch_scripts.pipeline [options] SOURCE [source options]
+
+SOURCE and its options are those of ``python -m launch_scripts.publish_frames``, e.g.
+
+    python -m launch_scripts.pipeline --preset realtime sim --scene towel_sway --loop
+    python -m launch_scripts.pipeline sequence SEQ --loop --pacing rate --rate-hz 10
+
+Two child processes are started (the frame publisher, then the perception service) and
+this process monitors them: it prints a summary of the newest estimate every
+--print-period-s and the service's status every --status-period-s. By default every
+endpoint is a free loopback port, printed at the start; --default-endpoints uses the
+fixed ones of ipc.endpoints so that a controller can connect to known ports.
+
+Ctrl-C (or SIGTERM) stops everything; when a child ends, the others are stopped too.
+Children never outlive this process: they are stopped on every exit path, and on Linux
+the kernel sends them SIGTERM if this process dies without cleaning up.
+Exit status: 0 after Ctrl-C, --duration-s, or the source's normal end; 1 if a child failed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ctypes
+import json
+import select
+import shlex
+import signal
+import subprocess
+import sys
+import threading
+import time
+
+from ipc import endpoints
+from ipc.messages import MeshEstimate, StatusRequest
+from ipc.transport import RemoteError, RequestClient, RequestTimeout, Subscriber
+
+FREE_PORT = "tcp://127.0.0.1:*"
+#: Seconds a child gets to bind its sockets (imports of NumPy, OpenCV, PyBullet included).
+STARTUP_TIMEOUT_S = 60.0
+#: Seconds a child gets to stop after SIGTERM before it is killed.
+STOP_TIMEOUT_S = 5.0
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="python -m launch_scripts.pipeline", description=__doc__.split("\n\n")[0],
+                                usage="%(prog)s [options] SOURCE [source options]")
+    p.add_argument("--default-endpoints", action="store_true", help="bind the fixed ports of ipc.endpoints")
+    p.add_argument("--preset", choices=("paper", "realtime"), default="realtime", help="tracker preset (default realtime)")
+    p.add_argument("--features", help="feature detector, overrides the preset")
+    p.add_argument("--no-auto-init", action="store_true", help="the service waits for an InitialiseRequest")
+    p.add_argument("--reinit-after-lost", type=int, default=0, metavar="N",
+                   help="re-initialise after N consecutive lost frames (default 0: never)")
+    p.add_argument("--viewer", action="store_true", help="live Rerun viewer in the service (rerun-sdk)")
+    p.add_argument("--service-args", default="", help="more perception_service options, one quoted string")
+    p.add_argument("--print-period-s", type=float, default=1.0, help="seconds between estimate lines (default 1)")
+    p.add_argument("--status-period-s", type=float, default=2.0, help="seconds between status lines (default 2)")
+    p.add_argument("--duration-s", type=float, help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("source", nargs=argparse.REMAINDER, help="SOURCE [options] for launch_scripts.publish_frames")
+    return p
+
+
+def _die_with_parent() -> None:
+    """Runs in the child before exec: the kernel sends it SIGTERM when its parent dies."""
+    ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+
+
+def start_child(name: str, module: str, args: list[str], procs: dict) -> dict:
+    """Start ``python -m module args`` as ``procs[name]``; return the endpoints it prints as
+    one JSON line once bound (its --print-endpoint(s) option)."""
+    command = [sys.executable, "-m", module, *args]
+    preexec = _die_with_parent if sys.platform.startswith("linux") else None
+    procs[name] = proc = subprocess.Popen(command, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True,
+                                          preexec_fn=preexec)
+    ready, _, _ = select.select([proc.stdout], [], [], STARTUP_TIMEOUT_S)
+    line = proc.stdout.readline() if ready else ""
+    if not line:
+        raise RuntimeError(f"the {name} did not start (exit status {proc.poll()}); see its messages above")
+    return json.loads(line)
+
+
+def stop_children(procs: list[subprocess.Popen]) -> None:
+    """SIGTERM every child still running, then SIGKILL those that do not stop in time."""
+    for proc in procs:
+        if proc.poll() is None:
+            proc.terminate()
+    deadline = time.monotonic() + STOP_TIMEOUT_S
+    for proc in procs:
+        try:
+            proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def describe(estimate: MeshEstimate) -> str:
+    """One line for a person about an estimate."""
+    z = estimate.vertices[:, 2]
+    return (f"estimate seq {estimate.seq}: {len(estimate.vertices)} vertices at z {z.min():.3f}..{z.max():.3f} m, "
+            f"confidence {estimate.confidence:.2f}{', LOST' if estimate.lost else ''}, {estimate.timing_ms:.1f} ms")
+
+
+def monitor(ends: dict, procs: dict, stop: threading.Event, args) -> int:
+    """Print estimates and status until ``stop``, ``--duration-s`` or a child's end; returns the exit status."""
+    deadline = None if args.duration_s is None else time.monotonic() + args.duration_s
+    next_print = next_status = time.monotonic()
+    with Subscriber(ends["estimates"], accept=(MeshEstimate,)) as estimates, \
+            RequestClient(ends["control"], timeout_s=1.0, attempts=1) as control:
+        while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
+            for name, proc in procs.items():
+                if proc.poll() is not None:
+                    print(f"{name} exited with status {proc.returncode}; stopping the pipeline", flush=True)
+                    return 0 if (name == "frame source" and proc.returncode == 0) else 1
+            estimate = estimates.recv_latest(timeout_s=0.1)
+            now = time.monotonic()
+            if estimate is not None and now >= next_print:
+                print(describe(estimate), flush=True)
+                next_print = now + args.print_period_s
+            if now >= next_status:
+                next_status = now + args.status_period_s
+                try:
+                    status = control.request(StatusRequest())
+                    print(f"status: {status.state}, {status.frames_processed} frames since init; {status.message}", flush=True)
+                except (RequestTimeout, RemoteError) as e:
+                    print(f"status: no answer ({e})", flush=True)
+    return 0
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    if not args.source:
+        build_parser().error("a SOURCE is required (sim, sequence, realsense, kinect or rosbag)")
+    stop = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    ports = {"frames": endpoints.FRAMES, "estimates": endpoints.ESTIMATES, "control": endpoints.PERCEPTION_CONTROL}
+    if not args.default_endpoints:
+        ports = dict.fromkeys(ports, FREE_PORT)
+    procs: dict[str, subprocess.Popen] = {}
+    try:
+        bound = start_child("frame source", "launch_scripts.publish_frames",
+                            [*args.source, "--endpoint", ports["frames"], "--print-endpoint"], procs)
+        service_args = ["--frames", bound["frames"], "--estimates", ports["estimates"], "--control", ports["control"],
+                        "--print-endpoints", "--preset", args.preset, "--reinit-after-lost", str(args.reinit_after_lost)]
+        service_args += ["--features", args.features] if args.features else []
+        service_args += ["--no-auto-init"] if args.no_auto_init else []
+        service_args += ["--viewer"] if args.viewer else []
+        ends = start_child("perception service", "launch_scripts.perception_service",
+                           service_args + shlex.split(args.service_args), procs)
+        print(f"pipeline: frames {ends['frames']}, estimates {ends['estimates']}, control {ends['control']}", flush=True)
+        return monitor(ends, procs, stop, args)
+    except KeyboardInterrupt:
+        return 0
+    except RuntimeError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    finally:
+        stop_children(list(procs.values()))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

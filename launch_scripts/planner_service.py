@@ -1,0 +1,140 @@
+"""Run the grasp planner service (``grasping.service``) until interrupted.
+
+    python -m launch_scripts.planner_service [--estimates EP] [--bind EP] [--frames EP]
+        [--kinds corner boundary highest] [--edge-approach pinch|normal] [--pinch-inset-m M]
+        [--T-world-cam 16 numbers] [--workspace-min X Y Z] [--workspace-max X Y Z]
+        [--min-score S] [--min-confidence C] [--opening-width-m W] [--print-endpoint]
+        [--log-level LEVEL]
+
+It subscribes to the perception service's MeshEstimate stream (default
+``ipc.endpoints.ESTIMATES``), optionally to the frame stream for the visibility term,
+and answers GraspRequest on a REP socket (default ``ipc.endpoints.PLANNER``) with
+GraspPlanReply, best first, or ErrorReply: ``not_ready`` before the first estimate,
+``invalid`` for a request it cannot serve, ``protocol`` for one it cannot decode; it
+keeps serving after every bad request. ``--bind tcp://127.0.0.1:*`` picks a free port;
+``--print-endpoint`` prints ``{"planner": ENDPOINT}`` as one JSON line on stdout once
+serving (as ``perception_service --print-endpoints``). SIGINT and SIGTERM stop it
+cleanly (exit status 0). Bad arguments: one line on stderr, exit status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import signal
+import sys
+import threading
+
+import numpy as np
+
+from grasping._planner import EDGE_APPROACHES, MODES, GraspPlannerConfig
+from grasping.service import PlannerService, run_planner_service
+from ipc import endpoints
+
+log = logging.getLogger("launch_scripts.planner_service")
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line on stderr and exit status 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _finite(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def _endpoint(text: str) -> str:
+    if not text.startswith(("tcp://", "ipc://", "inproc://")):
+        raise argparse.ArgumentTypeError(f"expected a ZeroMQ endpoint such as tcp://127.0.0.1:5563, got {text!r}")
+    return text
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _OneLineParser(prog="python -m launch_scripts.planner_service", description=__doc__.split("\n\n")[0])
+    p.add_argument("--estimates", type=_endpoint, default=endpoints.ESTIMATES,
+                   help=f"MeshEstimate publisher to connect to (default {endpoints.ESTIMATES})")
+    p.add_argument("--bind", type=_endpoint, default=endpoints.PLANNER,
+                   help=f"REP endpoint to bind (default {endpoints.PLANNER})")
+    p.add_argument("--frames", type=_endpoint, default=None,
+                   help="RGBDFrame publisher to connect to for the visibility term (default: none)")
+    p.add_argument("--kinds", nargs="+", choices=MODES, default=list(MODES),
+                   help="grasp kinds served (default: all)")
+    defaults = GraspPlannerConfig()
+    p.add_argument("--edge-approach", choices=EDGE_APPROACHES, default=defaults.edge_approach,
+                   help=f"corner and boundary approach (default {defaults.edge_approach})")
+    p.add_argument("--pinch-inset-m", type=_finite, default=defaults.pinch_inset_m,
+                   help=f"how far inside the outline edge grasps close, metres (default {defaults.pinch_inset_m})")
+    p.add_argument("--T-world-cam", dest="T_world_cam", type=_finite, nargs=16, default=None, metavar="T",
+                   help="camera-to-world transform, 16 numbers row-major (default: world = camera frame)")
+    p.add_argument("--workspace-min", type=_finite, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="lower corner of the reachable box, world frame, metres (default unbounded)")
+    p.add_argument("--workspace-max", type=_finite, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="upper corner of the reachable box, world frame, metres (default unbounded)")
+    p.add_argument("--up", type=_finite, nargs=3, default=None, metavar=("X", "Y", "Z"),
+                   help="up direction in the world frame (default z up with --T-world-cam, else image up)")
+    p.add_argument("--min-score", type=_finite, default=defaults.min_score, help="drop plans scoring lower (0-1)")
+    p.add_argument("--min-confidence", type=_finite, default=defaults.min_confidence,
+                   help="no plans on estimates less confident (0-1)")
+    p.add_argument("--opening-width-m", type=_finite, default=defaults.opening_width_m,
+                   help=f"finger opening, metres (default {defaults.opening_width_m})")
+    p.add_argument("--print-endpoint", action="store_true",
+                   help='print {"planner": ENDPOINT} as one JSON line on stdout once serving')
+    p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    return p
+
+
+def config_from_args(args) -> GraspPlannerConfig:
+    """GraspPlannerConfig of the parsed options; raises ValueError (one line) for bad values."""
+    kw = dict(edge_approach=args.edge_approach, pinch_inset_m=args.pinch_inset_m, min_score=args.min_score,
+              min_confidence=args.min_confidence, opening_width_m=args.opening_width_m)
+    if args.T_world_cam is not None:
+        kw["T_world_cam"] = np.asarray(args.T_world_cam, dtype=np.float64).reshape(4, 4)
+    if args.up is not None:
+        kw["up_world"] = np.asarray(args.up)
+    if args.workspace_min is not None:
+        kw["workspace_min_world"] = np.asarray(args.workspace_min)
+    if args.workspace_max is not None:
+        kw["workspace_max_world"] = np.asarray(args.workspace_max)
+    return GraspPlannerConfig(**kw)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if len(set(args.kinds)) != len(args.kinds):
+        parser.error(f"--kinds: repeated kind in {' '.join(args.kinds)}")
+    try:
+        service = PlannerService(config_from_args(args), kinds=args.kinds)
+    except ValueError as e:
+        parser.error(str(e))
+    logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+
+    def announce(endpoint: str) -> None:
+        if args.print_endpoint:
+            print(json.dumps({"planner": endpoint}), flush=True)
+
+    try:
+        run_planner_service(service, estimates_endpoint=args.estimates, planner_endpoint=args.bind,
+                            frames_endpoint=args.frames, stop=stop, on_bound=announce)
+    except ValueError as e:  # an endpoint that cannot be bound or connected
+        print(f"{parser.prog}: error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

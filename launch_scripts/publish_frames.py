@@ -1,0 +1,150 @@
+"""Publish RGB-D frames from one source on a ZeroMQ endpoint (docs/protocol.md, FRAMES).
+
+    python -m launch_scripts.publish_frames sim --scene poster_bend [--seed S] [--no-noise] [--frames N]
+    python -m launch_scripts.publish_frames sequence SEQ
+    python -m launch_scripts.publish_frames realsense [--width W --height H --fps F] [--serial SN]
+    python -m launch_scripts.publish_frames kinect [--colour-resolution 720p] [--depth-mode nfov_unbinned]
+    python -m launch_scripts.publish_frames rosbag BAG --rgb-topic T --depth-topic T --info-topic T
+
+Options for every source, after the source's name: --endpoint, --pacing
+{realtime,rate,fast}, --rate-hz, --loop, --max-frames, --start-delay-s,
+--heartbeat-period-s, --print-endpoint, --verbose. Ctrl-C or SIGTERM stops cleanly.
+Bad arguments, a missing SDK or device end with exit status 2 and one line on stderr.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+import threading
+
+from ipc import endpoints
+from perception.sources import (
+    KinectSource,
+    Pacing,
+    RealSenseSource,
+    RosbagSource,
+    SequenceSource,
+    SimSource,
+    SourceError,
+    run_publisher,
+)
+from perception.sources._kinect import COLOUR_RESOLUTIONS, DEPTH_MODES, FRAME_RATES
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def _non_negative_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not value >= 0:
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    common = argparse.ArgumentParser(add_help=False)
+    g = common.add_argument_group("publishing")
+    g.add_argument("--endpoint", default=endpoints.FRAMES,
+                   help=f"endpoint to bind (default {endpoints.FRAMES}; tcp://127.0.0.1:* picks a free port)")
+    g.add_argument("--pacing", choices=Pacing.MODES, default="realtime",
+                   help="realtime: keep the frames' timestamps' spacing (default); rate: --rate-hz; fast: no wait")
+    g.add_argument("--rate-hz", type=float, help="frames per second with --pacing rate")
+    g.add_argument("--loop", action="store_true", help="start over at the end (files and sim)")
+    g.add_argument("--max-frames", type=_positive_int, help="stop after this many frames")
+    g.add_argument("--start-delay-s", type=_non_negative_float, default=0.5,
+                   help="wait after binding so that waiting subscribers get the first frame (default 0.5)")
+    g.add_argument("--heartbeat-period-s", type=float, default=1.0, help="seconds between heartbeats (default 1)")
+    g.add_argument("--print-endpoint", action="store_true",
+                   help='print {"frames": ENDPOINT} as one JSON line on stdout once bound')
+    g.add_argument("--verbose", "-v", action="count", default=0, help="-v: info, -vv: debug logging")
+
+    parser = argparse.ArgumentParser(prog="python -m launch_scripts.publish_frames",
+                                     description=__doc__.split("\n\n")[0])
+    sub = parser.add_subparsers(dest="source", required=True, metavar="{sim,sequence,realsense,kinect,rosbag}")
+
+    p = sub.add_parser("sim", parents=[common], help="a simulated scene (sim.scenes)")
+    p.add_argument("--scene", default="poster_bend", help="registered scene name (default poster_bend)")
+    p.add_argument("--seed", type=int, default=0, help="scene seed (default 0)")
+    p.add_argument("--no-noise", action="store_true", help="render without sensor noise")
+    p.add_argument("--width", type=_positive_int, default=640)
+    p.add_argument("--height", type=_positive_int, default=480)
+    p.add_argument("--frames", type=_positive_int, default=60, help="frames per pass (default 60, the scenes' script)")
+
+    p = sub.add_parser("sequence", parents=[common], help="a recorded sequence folder")
+    p.add_argument("path", help="sequence folder (rgb.txt, depth.txt, camera_intrinsic.json)")
+
+    p = sub.add_parser("realsense", parents=[common], help="an Intel RealSense camera (pyrealsense2)")
+    p.add_argument("--width", type=_positive_int, default=640)
+    p.add_argument("--height", type=_positive_int, default=480)
+    p.add_argument("--fps", type=_positive_int, default=30)
+    p.add_argument("--serial", help="device serial number (default: the first camera)")
+
+    p = sub.add_parser("kinect", parents=[common], help="an Azure Kinect (pyk4a)")
+    p.add_argument("--colour-resolution", choices=list(COLOUR_RESOLUTIONS), default="720p")
+    p.add_argument("--depth-mode", choices=list(DEPTH_MODES), default="nfov_unbinned")
+    p.add_argument("--fps", type=int, choices=list(FRAME_RATES), default=30)
+    p.add_argument("--device", type=int, default=0, help="device index (default 0)")
+
+    p = sub.add_parser("rosbag", parents=[common], help="a ROS 1 or ROS 2 bag (rosbags)")
+    p.add_argument("path", help="the bag (.bag file or ROS 2 bag folder)")
+    p.add_argument("--rgb-topic", required=True, help="sensor_msgs/Image colour topic (rgb8 or bgr8)")
+    p.add_argument("--depth-topic", required=True, help="sensor_msgs/Image depth topic registered to colour (16UC1 mm or 32FC1 m)")
+    p.add_argument("--info-topic", required=True, help="sensor_msgs/CameraInfo topic of the colour camera")
+    return parser
+
+
+def open_source(args):
+    """The FrameSource the arguments ask for."""
+    if args.source == "sim":
+        return SimSource(args.scene, seed=args.seed, noise=not args.no_noise, width=args.width, height=args.height,
+                         n_frames=args.frames)
+    if args.source == "sequence":
+        return SequenceSource(args.path)
+    if args.source == "realsense":
+        return RealSenseSource(args.width, args.height, args.fps, serial=args.serial)
+    if args.source == "kinect":
+        return KinectSource(args.colour_resolution, args.depth_mode, args.fps, device_id=args.device)
+    return RosbagSource(args.path, args.rgb_topic, args.depth_topic, args.info_topic)
+
+
+def main(argv=None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)]
+    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
+
+    def bound(endpoint: str) -> None:
+        if args.print_endpoint:
+            print(json.dumps({"frames": endpoint}), flush=True)
+
+    try:
+        pacing = Pacing(args.pacing, args.rate_hz)
+        with open_source(args) as source:
+            run_publisher(source, args.endpoint, pacing=pacing, loop=args.loop, max_frames=args.max_frames,
+                          start_delay_s=args.start_delay_s, heartbeat_period_s=args.heartbeat_period_s, stop=stop,
+                          on_bound=bound)
+    except (SourceError, ValueError, OSError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

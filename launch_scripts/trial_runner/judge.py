@@ -1,0 +1,94 @@
+"""Judging a grasp by ground truth, and summarising many trials (pure NumPy and math).
+
+Material coordinates throughout: ``uv`` points are metres on the flat cloth (u right,
+v down from the top-left of its bounding box, ``sim.cloth_mesh``), so a distance is
+measured along the cloth, whatever its pose when it was grasped.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim.laundry import distance_to_polygon, nearest_corner
+
+log = logging.getLogger(__name__)
+
+MODES = ("corner", "boundary", "highest")
+#: A grasp counts as a corner (boundary) grasp when its material point is at most this
+#: far from a true corner (the true outline), metres.
+TOLERANCE_M = 0.03
+
+
+@dataclass(frozen=True)
+class Judgement:
+    """The verdict on one executed grasp.
+
+    success : the grasp did what its mode asks (see ``judge``)
+    corner_success : within the tolerance of a true corner and lifted clear, whatever the mode
+    corner_error_m : material distance from the grasped point to the nearest true corner (inf: nothing held)
+    nearest_corner : index of that corner, -1 when nothing was held
+    boundary_error_m : material distance from the grasped point to the true outline (inf: nothing held)
+    reason : "" on success, else one line saying why not
+    """
+
+    success: bool
+    corner_success: bool
+    corner_error_m: float
+    nearest_corner: int
+    boundary_error_m: float
+    reason: str
+
+
+def judge(mode: str, grasped_uv, lifted_clear: bool, corners_uv: np.ndarray, outline_uv: np.ndarray,
+          tolerance_m: float = TOLERANCE_M) -> Judgement:
+    """Judge a grasp against the true corners and outline of the cloth.
+
+    mode : "corner" (success: the grasped point within ``tolerance_m`` of a true corner
+        and the cloth lifted clear), "boundary" (within ``tolerance_m`` of the true
+        outline and lifted clear) or "highest" (the baseline: success when the cloth is
+        lifted clear; its corner distance is judged too, as ``corner_success``)
+    grasped_uv : (2,) float metres, material point held; None when nothing was held
+    lifted_clear : bool, no node of the cloth near the surface under it after the lift
+    corners_uv : (C, 2) float metres, C >= 1; outline_uv : (P, 2) float metres, closed polygon
+    """
+    if mode not in MODES:
+        raise ValueError(f"Expected mode in {MODES}, got {mode!r}")
+    if grasped_uv is None:
+        return Judgement(False, False, math.inf, -1, math.inf, "missed: no cloth between the fingers")
+    uv = np.asarray(grasped_uv, dtype=np.float64).reshape(2)
+    k, corner_error = nearest_corner(uv, corners_uv)
+    boundary_error = float(distance_to_polygon(uv[None], outline_uv)[0])
+    at_corner = corner_error <= tolerance_m
+    at_boundary = boundary_error <= tolerance_m
+    corner_success = at_corner and lifted_clear
+    if mode == "corner":
+        ok, miss = at_corner, f"grasped {100 * corner_error:.1f} cm from the nearest corner"
+    elif mode == "boundary":
+        ok, miss = at_boundary, f"grasped {100 * boundary_error:.1f} cm from the outline"
+    else:
+        ok, miss = True, ""
+    reasons = [] if ok else [miss]
+    if not lifted_clear:
+        reasons.append("not lifted clear")
+    return Judgement(success=not reasons, corner_success=corner_success, corner_error_m=corner_error,
+                     nearest_corner=k, boundary_error_m=boundary_error, reason="; ".join(reasons))
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (95 % for the default z).
+
+    successes, n : ints, 0 <= successes <= n; returns (low, high) in [0, 1]; (0, 1) for n = 0
+    """
+    if n < 0 or not 0 <= successes <= max(n, 0):
+        raise ValueError(f"Expected 0 <= successes <= n, got successes={successes}, n={n}")
+    if n == 0:
+        return 0.0, 1.0
+    p = successes / n
+    denominator = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denominator
+    half = z * math.sqrt(p * (1.0 - p) / n + z * z / (4 * n * n)) / denominator
+    return max(0.0, centre - half), min(1.0, centre + half)

@@ -1,0 +1,487 @@
+"""The perception service: MeshTracker behind ZeroMQ (docs/protocol.md, section "Services").
+
+It subscribes to ``RGBDFrame`` on the frames endpoint (newest frame only), tracks, and
+publishes one ``MeshEstimate`` per frame processed on the estimates endpoint; on the
+control endpoint it answers ``InitialiseRequest``, ``ResetRequest``,
+``SetParametersRequest`` and ``StatusRequest`` with a ``StatusReply`` (or ``ErrorReply``).
+
+Two layers:
+
+- ``PerceptionCore``: the state machine, without sockets: frames and requests in,
+  estimates and states out. States are those of ``StatusReply.STATES``:
+  "idle" (no mesh; frames are counted, not tracked), "initialising" (a mesh is built on
+  the next usable frame), "tracking", "lost" (the last estimate was flagged lost).
+- ``PerceptionService``: the sockets and the loop around a core, plus the status line
+  and an optional live viewer (rerun-sdk).
+
+Bad input never stops the service: a frame the tracker rejects, a frame without any
+valid depth, a frame from another camera (size or intrinsics), a failed initialisation
+or a tracker failure is logged once per kind, counted (``rejected_<kind>`` in the status
+line) and skipped; malformed messages are dropped by the subscriber and counted.
+
+Automatic (re-)initialisation by depth segmentation, when ``auto_init`` is on (default):
+at start; after a discontinuity of the frame stream (the source was silent for the
+subscriber's stale limit and came back, it restarted, or ``seq`` went backwards), since
+the tracker's motion prediction assumes consecutive frames; and, if
+``reinit_after_lost`` = N > 0, after N consecutive lost or rejected frames. A
+``ResetRequest`` always leaves the service "idle" until an ``InitialiseRequest``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ipc import endpoints
+from ipc.messages import (
+    InitialiseRequest,
+    MeshEstimate,
+    ResetRequest,
+    RGBDFrame,
+    SetParametersRequest,
+    StatusReply,
+    StatusRequest,
+)
+from perception.tracker import MeshTracker, TrackerConfig, TrackingError, config_with
+
+log = logging.getLogger(__name__)
+
+#: Value types a tracker parameter must have to be read and set over the wire.
+WIRE_TYPES = (bool, int, float, str)
+
+
+def tracker_parameters(config: TrackerConfig) -> dict:
+    """Every TrackerConfig field whose value is a bool, int, float or str, with its value:
+    the parameters a SetParametersRequest may change (tuples and nested configs may not)."""
+    return {f.name: getattr(config, f.name) for f in dataclasses.fields(config)
+            if isinstance(getattr(config, f.name), WIRE_TYPES)}
+
+
+def apply_parameters(config: TrackerConfig, parameters: dict) -> TrackerConfig:
+    """A copy of ``config`` with ``parameters`` (name -> value) applied, all or nothing.
+
+    A value must have its parameter's type; an int is accepted for a float parameter.
+    raises ValueError naming the unknown names, or the first parameter that cannot be set
+    over the wire, or the first value of the wrong type or range
+    """
+    if any(name not in TrackerConfig.__dataclass_fields__ for name in parameters):
+        config_with(config, **parameters)  # raises ValueError naming every unknown name
+    settable = tracker_parameters(config)
+    changes = {}
+    for name, value in parameters.items():
+        if name not in settable:
+            raise ValueError(f"tracker parameter {name!r} cannot be set over the wire (not a bool, int, float or str)")
+        current = settable[name]
+        if isinstance(current, bool):
+            ok = isinstance(value, bool)
+        elif isinstance(current, int):
+            ok = isinstance(value, int) and not isinstance(value, bool)
+        elif isinstance(current, float):
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+            value = float(value) if ok else value
+        else:
+            ok = isinstance(value, str)
+        if not ok:
+            raise ValueError(f"tracker parameter {name!r}: expected {type(current).__name__}, got {type(value).__name__} {value!r}")
+        changes[name] = value
+    return config_with(config, **changes)
+
+
+@dataclass
+class Counters:
+    """What the service has seen since it started (ints, read any time)."""
+
+    frames_taken: int = 0  # frames given to the core (the others were skipped as older than the newest)
+    processed: int = 0  # frames initialised on or tracked
+    reinitialisations: int = 0  # automatic re-initialisations (discontinuity or lost streak)
+    discontinuities: int = 0  # frame stream discontinuities seen
+    rejected: dict = dataclasses.field(default_factory=dict)  # kind -> frames rejected
+
+
+class PerceptionCore:
+    """The service's state machine around one MeshTracker; no sockets, no threads.
+
+    tracker_config : TrackerConfig of the tracker
+    auto_init : start "initialising" and re-initialise by depth segmentation after a
+        discontinuity (see the module docstring); else start "idle"
+    reinit_after_lost : N > 0 re-initialises after N consecutive lost or rejected frames
+        (with auto_init); 0 never
+    """
+
+    def __init__(self, tracker_config: TrackerConfig | None = None, *, auto_init: bool = True, reinit_after_lost: int = 0):
+        if isinstance(reinit_after_lost, bool) or not isinstance(reinit_after_lost, int) or reinit_after_lost < 0:
+            raise ValueError(f"reinit_after_lost: expected a non-negative integer, got {reinit_after_lost!r}")
+        self.tracker = MeshTracker(tracker_config)
+        self.auto_init = bool(auto_init)
+        self.reinit_after_lost = reinit_after_lost
+        self.state = "initialising" if self.auto_init else "idle"
+        self.counters = Counters()
+        self.frames_since_init = 0  # frames processed since the last initialisation, that one included
+        self.last_seq = -1  # seq of the last frame processed
+        self.lost_streak = 0  # consecutive lost or rejected frames while tracking
+        self.last_error = ""  # one line: why the last initialisation or frame failed
+        self._pending_mask: np.ndarray | None = None
+        self._frame_shape: tuple | None = None  # (H, W) of the last frame received
+        self._mesh_camera = None  # CameraInfo the mesh was initialised on
+        self._logged_kinds: set = set()
+
+    # -- requests --------------------------------------------------------------------------
+
+    def request_initialise(self, mask: np.ndarray | None) -> None:
+        """Build a new mesh on the next usable frame, on ``mask`` ((H, W) uint8, non-zero on
+        the object) or, if None, on the object found by depth segmentation.
+        raises ValueError if the mask's size differs from that of the frames received"""
+        if mask is not None and self._frame_shape is not None and mask.shape != self._frame_shape:
+            raise ValueError(f"InitialiseRequest.mask: expected shape {self._frame_shape} like the frames, got {mask.shape}")
+        self._pending_mask = mask
+        self.state = "initialising"
+        self.last_error = ""
+        log.info("initialising on the next frame (%s)", "mask" if mask is not None else "depth segmentation")
+
+    def request_reset(self) -> None:
+        """Drop the mesh; stay idle until ``request_initialise``."""
+        self.tracker.reset()
+        self._pending_mask = None
+        self._mesh_camera = None
+        self.state = "idle"
+        self.frames_since_init = 0
+        self.lost_streak = 0
+        log.info("reset: idle until an InitialiseRequest")
+
+    def set_parameters(self, parameters: dict) -> None:
+        """Change tracker parameters (see ``apply_parameters``); raises ValueError, changing nothing."""
+        old = self.tracker.config
+        try:
+            self.tracker.set_config(apply_parameters(old, parameters))
+        except ValueError:
+            # set_config may fail after taking the new config (e.g. an unknown solver name).
+            self.tracker.set_config(old)
+            raise
+        log.info("tracker parameters set: %s", parameters)
+
+    def parameters(self) -> dict:
+        """The parameters SetParametersRequest accepts, with their current values."""
+        return tracker_parameters(self.tracker.config)
+
+    def discontinuity(self, reason: str) -> None:
+        """The frame stream is not a continuation of the frames tracked so far (``reason``, one line)."""
+        self.counters.discontinuities += 1
+        if self.auto_init and self.state in ("tracking", "lost"):
+            log.info("%s: re-initialising on the next frame", reason)
+            self._reinitialise()
+        else:
+            log.info("%s", reason)
+
+    def _reinitialise(self) -> None:
+        self.counters.reinitialisations += 1
+        self._pending_mask = None
+        self.state = "initialising"
+        self.lost_streak = 0
+
+    # -- frames ----------------------------------------------------------------------------
+
+    def handle_frame(self, frame: RGBDFrame) -> MeshEstimate | None:
+        """Process one frame according to the state; returns its estimate, or None when the
+        frame was not tracked (idle, or rejected: see ``counters.rejected``)."""
+        self.counters.frames_taken += 1
+        self._frame_shape = frame.depth_m.shape
+        if self.state == "idle":
+            return None
+        if not frame.valid_depth().any():
+            return self._reject("no_depth", f"frame {frame.seq}: no valid depth pixel (all 0 or NaN)")
+        try:
+            if self.state == "initialising":
+                return self._initialise(frame)
+            return self._track(frame)
+        except Exception as e:  # a tracker failure on one frame must not stop the service
+            if "internal" not in self._logged_kinds:
+                log.exception("frame %d: tracker failed (later failures are counted in the status)", frame.seq)
+            return self._reject("internal", f"frame {frame.seq}: {type(e).__name__}: {e}", log_it=False)
+
+    def _initialise(self, frame: RGBDFrame) -> MeshEstimate | None:
+        mask = self._pending_mask
+        try:
+            estimate = self.tracker.initialise(frame, mask=mask)
+        except TrackingError as e:
+            if mask is not None:
+                # A controller's mask will not fit later frames better: wait for a new request.
+                self._pending_mask = None
+                self.state = "idle"
+            return self._reject("init_failed", f"frame {frame.seq}: initialisation failed: {e}")
+        self._pending_mask = None
+        self._mesh_camera = frame.camera
+        self.frames_since_init = 0
+        self.lost_streak = 0
+        self.last_error = ""
+        return self._accept(frame, estimate)
+
+    def _track(self, frame: RGBDFrame) -> MeshEstimate | None:
+        cam, ref = frame.camera, self._mesh_camera
+        if (cam.width, cam.height) != (ref.width, ref.height) or not np.allclose(cam.K, ref.K):
+            self._bad_frame()
+            return self._reject("camera_changed", f"frame {frame.seq}: camera {cam.width}x{cam.height} fx={cam.fx:.6g} "
+                                f"differs from the mesh's {ref.width}x{ref.height} fx={ref.fx:.6g}")
+        try:
+            estimate = self.tracker.track(frame)
+        except TrackingError as e:
+            self._bad_frame()
+            return self._reject("tracker", f"frame {frame.seq}: {e}")
+        return self._accept(frame, estimate)
+
+    def _accept(self, frame: RGBDFrame, estimate: MeshEstimate) -> MeshEstimate:
+        self.counters.processed += 1
+        self.frames_since_init += 1
+        self.last_seq = frame.seq
+        if estimate.lost:
+            self.state = "lost"
+            self._bad_frame()
+        else:
+            self.state = "tracking"
+            self.lost_streak = 0
+        return estimate
+
+    def _bad_frame(self) -> None:
+        self.lost_streak += 1
+        n = self.reinit_after_lost
+        if self.auto_init and n and self.lost_streak >= n and self.state in ("tracking", "lost"):
+            log.info("%d consecutive lost or rejected frames: re-initialising on the next frame", self.lost_streak)
+            self._reinitialise()
+
+    def _reject(self, kind: str, message: str, log_it: bool = True) -> None:
+        rejected = self.counters.rejected
+        rejected[kind] = rejected.get(kind, 0) + 1
+        self.last_error = message
+        if kind not in self._logged_kinds:
+            self._logged_kinds.add(kind)
+            if log_it:
+                log.warning("%s (later frames rejected as %r are counted in the status, not logged)", message, kind)
+        else:
+            log.debug("%s", message)
+        return None
+
+
+@dataclass(frozen=True)
+class ServiceConfig:
+    """Endpoints and behaviour of a PerceptionService.
+
+    frames : endpoint of the frame publisher to connect to
+    estimates, control : endpoints to bind (``tcp://127.0.0.1:*`` picks free ports)
+    auto_init, reinit_after_lost : see PerceptionCore
+    stale_after_s : seconds without any message from the frame publisher before it counts
+        as gone (at least three of its heartbeat periods)
+    heartbeat_period_s : seconds between heartbeats of the estimates publisher
+    poll_s : longest wait for a frame before control requests are served again
+    viewer : None, "spawn" (start a Rerun viewer) or a path to save a Rerun .rrd recording
+    """
+
+    frames: str = endpoints.FRAMES
+    estimates: str = endpoints.ESTIMATES
+    control: str = endpoints.PERCEPTION_CONTROL
+    auto_init: bool = True
+    reinit_after_lost: int = 0
+    stale_after_s: float = 3.0
+    heartbeat_period_s: float = 1.0
+    poll_s: float = 0.02
+    viewer: str | None = None
+
+
+class PerceptionService:
+    """Sockets and loop of the perception service; see the module docstring.
+
+    tracker_config : TrackerConfig (default: the paper's)
+    config : ServiceConfig
+
+    ``run(stop)`` serves until ``stop`` is set; ``step()`` does one round (serve waiting
+    control requests, take the newest frame, track it, publish the estimate). After
+    construction ``endpoints`` holds the endpoints actually bound or connected.
+    Use from one thread; close() (or the context manager) releases the sockets.
+    """
+
+    def __init__(self, tracker_config: TrackerConfig | None = None, config: ServiceConfig = ServiceConfig()):
+        from ipc.transport import Publisher, ReplyServer, Subscriber
+
+        self.config = config
+        self.core = PerceptionCore(tracker_config, auto_init=config.auto_init, reinit_after_lost=config.reinit_after_lost)
+        self.last_latency_ms: float | None = None
+        self._returned = threading.Event()  # set by the subscriber's thread when the source comes back
+        self._last_beat = None
+        self._viewer = None
+        self._closers = []
+        try:
+            self._frames = Subscriber(config.frames, accept=(RGBDFrame,), stale_after_s=config.stale_after_s,
+                                      on_liveness=self._on_liveness)
+            self._closers.append(self._frames.close)
+            self._estimates = Publisher(config.estimates, source="perception", heartbeat_period_s=config.heartbeat_period_s)
+            self._closers.append(self._estimates.close)
+            handlers = {InitialiseRequest: self._on_initialise, ResetRequest: self._on_reset,
+                        SetParametersRequest: self._on_set_parameters, StatusRequest: self._on_status}
+            self._control = ReplyServer(config.control, handlers)
+            self._closers.append(self._control.close)
+            if config.viewer is not None:
+                self._viewer = RerunViewer(config.viewer)
+        except BaseException:
+            self.close()
+            raise
+        self.endpoints = {"frames": config.frames, "estimates": self._estimates.endpoint, "control": self._control.endpoint}
+        log.info("perception service: frames from %s, estimates on %s, control on %s, %s", config.frames,
+                 self.endpoints["estimates"], self.endpoints["control"], self.core.state)
+
+    # -- loop ------------------------------------------------------------------------------
+
+    def run(self, stop: threading.Event) -> None:
+        """Serve until ``stop`` is set."""
+        while not stop.is_set():
+            self.step()
+
+    def step(self) -> MeshEstimate | None:
+        """One round; returns the estimate published, if any."""
+        while self._control.serve_once(0.0):
+            pass
+        frame = self._frames.recv_latest(self.config.poll_s)
+        self._check_source()
+        if frame is None:
+            return None
+        taken = time.perf_counter()
+        if frame.seq < self.core.last_seq and self.core.state in ("tracking", "lost"):
+            self.core.discontinuity(f"frame seq went back from {self.core.last_seq} to {frame.seq}")
+        estimate = self.core.handle_frame(frame)
+        if estimate is not None:
+            self._estimates.publish(estimate)
+            self.last_latency_ms = (time.perf_counter() - taken) * 1000.0
+        if self._viewer is not None:
+            self._viewer.show(frame, estimate)
+        return estimate
+
+    def _on_liveness(self, alive: bool, seconds: float) -> None:
+        # Runs on the subscriber's receiver thread: only flag it; the loop acts on it.
+        if alive:
+            self._returned.set()
+
+    def _check_source(self) -> None:
+        """Tell the core when the frame source came back after a silence, or restarted (its
+        heartbeat seq went back or its name changed: a new publisher process)."""
+        beat = self._frames.last_heartbeat
+        last, self._last_beat = self._last_beat, beat
+        reason = None
+        if beat is not None and last is not None and beat is not last and (beat.source != last.source or beat.seq < last.seq):
+            reason = f"frame source {beat.source!r} restarted (heartbeat seq {beat.seq} after {last.seq})"
+        if self._returned.is_set():
+            self._returned.clear()
+            reason = reason or "frame source back after a silence"
+            # A restart during the silence is this same event: compare later heartbeats
+            # with the first one seen from now on, not with one from before the silence.
+            self._last_beat = None
+        if reason is not None:
+            self.core.discontinuity(reason)
+
+    # -- control ---------------------------------------------------------------------------
+
+    def _on_initialise(self, request: InitialiseRequest) -> StatusReply:
+        self.core.request_initialise(request.mask)
+        return self.status(request.request_id)
+
+    def _on_reset(self, request: ResetRequest) -> StatusReply:
+        self.core.request_reset()
+        return self.status(request.request_id)
+
+    def _on_set_parameters(self, request: SetParametersRequest) -> StatusReply:
+        self.core.set_parameters(request.parameters)
+        return self.status(request.request_id)
+
+    def _on_status(self, request: StatusRequest) -> StatusReply:
+        return self.status(request.request_id)
+
+    def status(self, request_id: int = 0) -> StatusReply:
+        """The StatusReply for ``request_id``: state, counts, parameters, and the status line."""
+        core = self.core
+        return StatusReply(request_id=request_id, state=core.state, frames_processed=core.frames_since_init,
+                           last_seq=core.last_seq, parameters=core.parameters(), message=self.status_line())
+
+    def status_line(self) -> str:
+        """One line of ``key=value`` tokens (docs/protocol.md, "Status line"), ``error=`` last."""
+        core, counters, frames = self.core, self.core.counters, self._frames
+        if frames.age_s == math.inf:
+            source = "waiting"
+        else:
+            source = "stale" if frames.stale else "live"
+        age = "none" if frames.age_s == math.inf else f"{frames.age_s:.2f}"
+        latency = "none" if self.last_latency_ms is None else f"{self.last_latency_ms:.1f}"
+        tokens = [f"source={source}", f"source_age_s={age}", f"frames_in={counters.frames_taken + frames.skipped}",
+                  f"processed={counters.processed}", f"dropped={frames.skipped}",
+                  f"rejected={sum(counters.rejected.values())}"]
+        tokens += [f"rejected_{kind}={n}" for kind, n in sorted(counters.rejected.items())]
+        tokens += [f"malformed={frames.malformed}", f"latency_ms={latency}", f"lost_streak={core.lost_streak}",
+                   f"reinits={counters.reinitialisations}", f"discontinuities={counters.discontinuities}"]
+        if core.last_error:
+            tokens.append("error=" + " ".join(core.last_error.split()))
+        return " ".join(tokens)
+
+    def close(self) -> None:
+        """Close the sockets (and the viewer's recording)."""
+        for close in reversed(self._closers):
+            close()
+        self._closers = []
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
+
+    def __enter__(self) -> PerceptionService:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class RerunViewer:
+    """Live view of the service in Rerun (optional ``rerun-sdk`` >= 0.23, extra "viewer").
+
+    target : "spawn" starts a Rerun viewer window; any other string is a path where the
+        recording is saved (.rrd), for machines without a display
+
+    Logged per frame on timeline "frame" (the frame's seq), in the camera's optical frame
+    (right, down, forward): ``camera`` (pinhole), ``camera/rgb``, ``camera/depth``
+    (metres), ``points`` (the depth image back-projected, every ``POINT_STRIDE``-th pixel,
+    coloured) and ``mesh`` (the estimate's triangles).
+    """
+
+    POINT_STRIDE = 4  # a 640x480 frame gives ~19k points: enough to judge the fit, light to send
+
+    def __init__(self, target: str = "spawn"):
+        try:
+            rr = importlib.import_module("rerun")
+        except ImportError as e:
+            raise RuntimeError(f"the live viewer needs the Python module 'rerun' ({e}); "
+                               "install it with: pip install 'clothkit[viewer]'") from None
+        self._rr = rr
+        rr.init("clothkit perception", spawn=(target == "spawn"))
+        if target != "spawn":
+            rr.save(target)
+        rr.log("/", rr.ViewCoordinates.RDF, static=True)
+
+    def show(self, frame: RGBDFrame, estimate: MeshEstimate | None) -> None:
+        """Log ``frame`` and, if given, the estimate tracked on it."""
+        rr = self._rr
+        cam = frame.camera
+        rr.set_time("frame", sequence=frame.seq)
+        rr.log("camera", rr.Pinhole(image_from_camera=cam.K, width=cam.width, height=cam.height))
+        rr.log("camera/rgb", rr.Image(frame.rgb))
+        rr.log("camera/depth", rr.DepthImage(frame.depth_m, meter=1.0))
+        s = self.POINT_STRIDE
+        depth = frame.depth_m[::s, ::s]
+        rows, cols = np.nonzero(np.isfinite(depth) & (depth > 0))
+        z = depth[rows, cols].astype(np.float64)
+        u, v = cols * s, rows * s
+        points = np.column_stack([(u - cam.cx) * z / cam.fx, (v - cam.cy) * z / cam.fy, z])
+        rr.log("points", rr.Points3D(points, colors=frame.rgb[v, u]))
+        if estimate is not None:
+            rr.log("mesh", rr.Mesh3D(vertex_positions=estimate.vertices, triangle_indices=estimate.faces))
+
+    def close(self) -> None:
+        self._rr.disconnect()

@@ -1,0 +1,521 @@
+"""Laundry-grasping trial scenes: a towel or T-shirt on a table (or held up by a corner).
+
+A scene has two halves, as ``sim.scenes``: ``LaundrySpec`` (pure data drawn from a seed
+by ``laundry_spec``) and ``LaundryScene``, which builds the PyBullet world from it,
+drops and settles the cloth, renders noisy RGB-D frames and answers ground-truth
+questions (where the true corners and the outline of the cloth are).
+
+What a seed draws (``laundry_spec``):
+
+- cloth: a towel (rectangle 0.35-0.60 m by 0.30-0.50 m) or a T-shirt (the default
+  ``TShirtShape`` scaled by 0.60-0.85), printed (poster texture) or plain coloured;
+- initial state (``INITIAL_STATES``): ``flat`` (laid flat at a random yaw and dropped
+  from a few centimetres), ``crumpled`` (dropped from 10-25 cm in a random tilted pose,
+  so it lands creased and partly folded), ``folded`` (a random straight fold: the part
+  of the cloth beyond a random line is turned over it before the drop), or ``held``
+  (hanging from a holder that pins one true corner, its lowest point above the table);
+- table: top 0.70-0.78 m above the floor, 1.2 m x 0.8 m, neutral grey;
+- camera: 1.0-1.3 m from the cloth, 50-70 degrees above the horizontal, azimuth within
+  20 degrees of the table's front (-y), aim jittered by a few centimetres; Kinect-like
+  intrinsics, sensor noise on by default (``sim.noise``).
+
+Ground truth (material coordinates ``uv_m`` of ``sim.cloth_mesh``, metres on the flat
+cloth): the true corners (a towel's four corners; a T-shirt's hem corners and the two
+corners of each sleeve end, taken from the ``TShirtShape`` construction, not from mesh
+indices) and the material outline (the closed boundary polygon of the mesh).
+
+World frame: z up, floor top at z = 0, the table centred on the origin. Camera frame:
+OpenCV optical; ``T_world_cam`` (4, 4) maps camera points to the world.
+The same seed gives the same scene and the same frames; noise on or off does not
+change the scene (independent random streams, as ``sim.scenes``).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ipc.messages import CameraInfo, RGBDFrame
+from sim.camera import Lighting, VirtualCamera
+from sim.camera_model import look_at, transform_points
+from sim.cloth_mesh import ClothMesh, TShirtShape, boundary_vertices, rectangle_mesh, tshirt_mesh
+from sim.noise import DepthNoiseModel, add_colour_noise, add_depth_noise
+from sim.physics import ClothMaterial, ClothPhysics, Gripper
+from sim.scenes import Box, kinect_camera
+from sim.textures import plain_texture, poster_texture, random_plain_colour
+
+log = logging.getLogger(__name__)
+
+CLOTH_KINDS = ("towel", "tshirt")
+INITIAL_STATES = ("flat", "crumpled", "folded", "held")
+#: How often each initial state is drawn, in the order of ``INITIAL_STATES``.
+STATE_PROBABILITIES = (0.35, 0.25, 0.15, 0.25)
+#: Spacing of the simulated cloth's grid, metres. Corners are mesh vertices whatever it is.
+CLOTH_SPACING_M = 0.03
+#: Half extents of the table top (x, y), metres, and its thickness.
+TABLE_HALF_XY_M = (0.60, 0.40)
+TABLE_THICKNESS_M = 0.04
+#: The holder of a ``held`` cloth pins the nodes within this radius of its corner: a finger pad.
+HOLDER_RADIUS_M = 0.02
+
+
+def _check_seed(seed) -> int:
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ValueError(f"expected a non-negative integer seed, got {seed!r}")
+    return int(seed)
+
+
+# ----------------------------------------------------------------------------- ground truth (pure)
+
+
+def rectangle_corners_uv(width_m: float, height_m: float) -> tuple[np.ndarray, tuple]:
+    """The four corners of a ``rectangle_mesh`` in material coordinates.
+
+    returns corners (4, 2) float64 metres (u right, v down from the top-left) and their
+    names ``("top_left", "top_right", "bottom_right", "bottom_left")``
+    """
+    w, h = float(width_m), float(height_m)
+    corners = np.array([[0.0, 0.0], [w, 0.0], [w, h], [0.0, h]])
+    return corners, ("top_left", "top_right", "bottom_right", "bottom_left")
+
+
+def tshirt_corners_uv(shape: TShirtShape) -> tuple[np.ndarray, tuple]:
+    """Hem corners and sleeve-end corners of a ``tshirt_mesh(shape)`` in material coordinates.
+
+    The points come from the outline's construction (``TShirtShape.outline`` lists the
+    neck, then the right shoulder, cuff top, cuff bottom, armpit and hem, then the same
+    on the left in reverse), shifted as ``tshirt_mesh`` shifts the outline so that its
+    bounding box starts at (0, 0). The neck's corners are left out: a neck opening is
+    not what a laundry robot calls a corner of a shirt.
+
+    returns corners (6, 2) float64 metres and their names
+    """
+    outline = shape.outline()
+    n_neck = len(outline) - 10
+    key = outline[n_neck:] - outline.min(axis=0)
+    # key rows: 0 right shoulder, 1 right cuff top, 2 right cuff bottom, 3 right armpit,
+    # 4 right hem, 5 left hem, 6 left armpit, 7 left cuff bottom, 8 left cuff top, 9 left shoulder
+    rows = (1, 2, 4, 5, 7, 8)
+    names = ("right_cuff_top", "right_cuff_bottom", "right_hem", "left_hem", "left_cuff_bottom", "left_cuff_top")
+    return key[list(rows)].astype(np.float64), names
+
+
+def material_outline(mesh: ClothMesh) -> np.ndarray:
+    """The cloth's outer boundary as an ordered loop of vertex ids.
+
+    Boundary edges (used by one face) are chained in the faces' winding; the longest
+    loop is the outer outline (the meshes of ``sim.cloth_mesh`` have one).
+
+    returns (P,) int64 vertex ids, the closing edge implied
+    """
+    f = mesh.faces
+    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    key = np.sort(directed, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    half = directed[counts[inverse.ravel()] == 1]
+    nxt = {int(a): int(b) for a, b in half}
+    loops, seen = [], set()
+    for start in nxt:
+        if start in seen:
+            continue
+        loop, v = [], start
+        while v not in seen and v in nxt:
+            seen.add(v)
+            loop.append(v)
+            v = nxt[v]
+        loops.append(loop)
+    return np.asarray(max(loops, key=len), dtype=np.int64)
+
+
+def distance_to_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """Distance of 2D points to the outline of a closed polygon.
+
+    points : (N, 2) float, metres; polygon : (P, 2) float, closing edge implied
+    returns (N,) float64 metres (0 on the outline, whether the point is inside or not)
+    """
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+    a = np.asarray(polygon, dtype=np.float64)
+    ab = np.roll(a, -1, axis=0) - a
+    ap = pts[:, None, :] - a[None]
+    t = np.clip(np.sum(ap * ab[None], axis=2) / np.maximum(np.sum(ab * ab, axis=1), 1e-300)[None], 0.0, 1.0)
+    return np.min(np.linalg.norm(ap - t[..., None] * ab[None], axis=2), axis=1)
+
+
+def nearest_corner(uv: np.ndarray, corners_uv: np.ndarray) -> tuple[int, float]:
+    """Index of the corner nearest to a material point and the distance to it.
+
+    uv : (2,) float metres; corners_uv : (C, 2) float metres, C >= 1
+    returns (index, distance in metres)
+    """
+    d = np.linalg.norm(np.asarray(corners_uv, dtype=np.float64) - np.asarray(uv, dtype=np.float64).reshape(1, 2), axis=1)
+    k = int(np.argmin(d))
+    return k, float(d[k])
+
+
+# ----------------------------------------------------------------------------- spec (pure data)
+
+
+@dataclass(frozen=True)
+class LaundrySpec:
+    """Everything a laundry scene needs, as data (see the module docstring).
+
+    seed : the seed it was drawn from
+    cloth_kind : "towel" or "tshirt"; cloth : ClothMesh; printed : texture is a print
+    texture_rgb : (Ht, Wt, 3) uint8 spanning the cloth's bounding box
+    material : ClothMaterial
+    corners_uv : (C, 2) float64 metres, the true corners; corner_names : C names
+    outline_ids : (P,) int64 vertex ids of the material outline, in order
+    state : one of ``INITIAL_STATES``
+    cloth_vertices_world : (V, 3) float64 metres, where the cloth starts before settling
+    holder_vertex : cloth vertex pinned by the holder (``held`` only), else None
+    holder_position : (3,) float64 metres, world, where the holder stays (``held`` only)
+    table_top_z : float metres; boxes : the floor and the table (``sim.scenes.Box``)
+    camera : CameraInfo; T_world_cam : (4, 4) float64, optical camera frame to world
+    settle_s : simulated seconds the cloth falls and settles before frame 0
+    """
+
+    seed: int
+    cloth_kind: str
+    cloth: ClothMesh
+    printed: bool
+    texture_rgb: np.ndarray
+    material: ClothMaterial
+    corners_uv: np.ndarray
+    corner_names: tuple
+    outline_ids: np.ndarray
+    state: str
+    cloth_vertices_world: np.ndarray
+    holder_vertex: int | None
+    holder_position: np.ndarray | None
+    table_top_z: float
+    boxes: tuple
+    camera: CameraInfo
+    T_world_cam: np.ndarray
+    settle_s: float
+    timestep_s: float = 1.0 / 240.0
+    lighting: Lighting = field(default_factory=Lighting)
+
+    @property
+    def outline_uv(self) -> np.ndarray:
+        """(P, 2) float64 metres: the material outline as a closed polygon."""
+        return self.cloth.uv_m[self.outline_ids]
+
+    @property
+    def table_half_xy(self) -> tuple[float, float]:
+        return TABLE_HALF_XY_M
+
+    def describe(self) -> str:
+        """One line: what the seed drew."""
+        w, h = self.cloth.size_m
+        texture = "printed" if self.printed else "plain"
+        return f"seed {self.seed}: {texture} {self.cloth_kind} {w:.2f}x{h:.2f} m, {self.state}"
+
+
+def _rotation(axis: np.ndarray, angle_rad: float) -> np.ndarray:
+    """(3, 3) rotation about a unit axis (Rodrigues)."""
+    a = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
+    k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
+    return np.eye(3) + np.sin(angle_rad) * k + (1.0 - np.cos(angle_rad)) * (k @ k)
+
+
+def _flat_on_table(mesh: ClothMesh, yaw_rad: float, height_m: float) -> np.ndarray:
+    """(V, 3) the flat cloth, front up, centred over the origin at ``height_m``, turned by ``yaw_rad``."""
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    right, down = np.array([c, s, 0.0]), np.array([s, -c, 0.0])  # front faces down x right = +z
+    centre_uv = 0.5 * (mesh.uv_m.min(axis=0) + mesh.uv_m.max(axis=0))
+    return mesh.layout_points(np.array([0.0, 0.0, height_m]) - centre_uv[0] * right - centre_uv[1] * down, right, down)
+
+
+def _fold(mesh: ClothMesh, points: np.ndarray, rng: np.random.Generator, layer_m: float) -> np.ndarray:
+    """Turn the part of a flat, front-up cloth beyond a random straight line over onto the rest.
+
+    The line crosses the cloth with a random direction, placed so that 15-40 % of the
+    vertices lie beyond it (a corner or a side turned over). Those are mirrored about the
+    line in the cloth's plane and lifted by ``layer_m`` so the flap starts above the rest.
+    points : (V, 3) flat placement (z constant); returns (V, 3)
+    """
+    uv = mesh.uv_m
+    angle = rng.uniform(0.0, 2.0 * np.pi)
+    n = np.array([np.cos(angle), np.sin(angle)])
+    s = uv @ n
+    cut = np.quantile(s, 1.0 - rng.uniform(0.15, 0.40))
+    beyond = s > cut
+    out = points.copy()
+    # The mirror in uv maps to a mirror in the world plane: find the world direction of n.
+    to_world = np.linalg.lstsq(np.column_stack([uv - uv.mean(axis=0), np.ones(len(uv))]), points, rcond=None)[0]
+    n_world = to_world[0] * n[0] + to_world[1] * n[1]
+    n_world[2] = 0.0
+    n_world /= np.linalg.norm(n_world)
+    excess = (s[beyond] - cut)[:, None]
+    out[beyond] = points[beyond] - 2.0 * excess * n_world[None]
+    out[beyond, 2] += layer_m
+    return out
+
+
+def _camera_pose(rng: np.random.Generator, target: np.ndarray) -> np.ndarray:
+    """T_world_cam looking down at ``target`` from 1.0-1.3 m, 50-70 deg elevation, front side, jittered."""
+    distance = rng.uniform(1.0, 1.3)
+    elevation = np.radians(rng.uniform(50.0, 70.0))
+    azimuth = np.radians(-90.0 + rng.uniform(-20.0, 20.0))  # -90 deg: the camera on the -y side
+    eye = target + distance * np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                                        np.sin(elevation)])
+    return look_at(eye, target + rng.uniform(-0.03, 0.03, 3))
+
+
+def _texture(mesh: ClothMesh, rng: np.random.Generator, printed: bool, px_per_m: float = 900.0) -> np.ndarray:
+    if not printed:
+        return plain_texture(random_plain_colour(rng))
+    width, height = mesh.size_m
+    area = width * height
+    return poster_texture(rng, int(round(width * px_per_m)), int(round(height * px_per_m)),
+                          n_shapes=max(20, int(120 * area / 0.27)), n_words=max(3, int(10 * area / 0.27)))
+
+
+def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None = None,
+                 cloth_kind: str | None = None) -> LaundrySpec:
+    """Draw a laundry scene from ``seed`` (see the module docstring).
+
+    camera : CameraInfo, default Kinect-like 640x480
+    state, cloth_kind : force the initial state or cloth kind (the rest is still drawn
+        from the seed, from the same stream, so forcing one changes nothing else's draw)
+    """
+    seed = _check_seed(seed)
+    if state is not None and state not in INITIAL_STATES:
+        raise ValueError(f"unknown initial state {state!r}; expected one of {', '.join(INITIAL_STATES)}")
+    if cloth_kind is not None and cloth_kind not in CLOTH_KINDS:
+        raise ValueError(f"unknown cloth kind {cloth_kind!r}; expected one of {', '.join(CLOTH_KINDS)}")
+    camera = camera if camera is not None else kinect_camera(640, 480)
+    scene_seq, _ = np.random.SeedSequence(seed).spawn(2)
+    rng = np.random.default_rng(scene_seq)
+
+    drawn_kind = CLOTH_KINDS[int(rng.integers(0, len(CLOTH_KINDS)))]
+    drawn_state = INITIAL_STATES[int(rng.choice(len(INITIAL_STATES), p=STATE_PROBABILITIES))]
+    kind = cloth_kind or drawn_kind
+    state = state or drawn_state
+    printed = bool(rng.random() < 0.5)
+    size_draw = rng.uniform(0.0, 1.0, 2)
+    if kind == "towel":
+        width, height = 0.35 + 0.25 * size_draw[0], 0.30 + 0.20 * size_draw[1]
+        mesh = rectangle_mesh(width, height, spacing_m=CLOTH_SPACING_M)
+        corners_uv, names = rectangle_corners_uv(width, height)
+        material = ClothMaterial(mass_per_area_kg_m2=0.3)
+    else:
+        shape = TShirtShape().scaled(0.60 + 0.25 * size_draw[0])
+        mesh = tshirt_mesh(shape, spacing_m=CLOTH_SPACING_M)
+        corners_uv, names = tshirt_corners_uv(shape)
+        material = ClothMaterial(mass_per_area_kg_m2=0.18)
+    texture = _texture(mesh, rng, printed)
+    table_top = rng.uniform(0.70, 0.78)
+    grey = rng.uniform(0.55, 0.70)
+    boxes = (
+        Box((3.0, 3.0, 0.01), (0.0, 0.0, -0.01), (0.42, 0.40, 0.37, 1.0)),
+        Box((TABLE_HALF_XY_M[0], TABLE_HALF_XY_M[1], 0.5 * TABLE_THICKNESS_M),
+            (0.0, 0.0, table_top - 0.5 * TABLE_THICKNESS_M), (grey, grey, grey + 0.02, 1.0)),
+    )
+
+    yaw = rng.uniform(0.0, 2.0 * np.pi)
+    holder_vertex, holder_position = None, None
+    target = np.array([0.0, 0.0, table_top])
+    if state == "flat":
+        tilt = _rotation(np.array([np.cos(yaw), np.sin(yaw), 0.0]), np.radians(rng.uniform(-4.0, 4.0)))
+        flat = _flat_on_table(mesh, yaw, 0.0)
+        verts = flat @ tilt.T + [0.0, 0.0, table_top + 0.03 + rng.uniform(0.0, 0.03)]
+        settle_s = 1.0
+    elif state == "crumpled":
+        flat = _flat_on_table(mesh, yaw, 0.0)
+        axis_angle = rng.uniform(0.0, np.pi)
+        tilt = _rotation(np.array([np.cos(axis_angle), np.sin(axis_angle), 0.0]), np.radians(rng.uniform(35.0, 75.0)))
+        verts = flat @ tilt.T
+        verts[:, 2] += table_top + rng.uniform(0.10, 0.25) - verts[:, 2].min()
+        settle_s = 2.0
+    elif state == "folded":
+        flat = _flat_on_table(mesh, yaw, 0.0)
+        verts = _fold(mesh, flat, rng, layer_m=0.012) + [0.0, 0.0, table_top + 0.02]
+        settle_s = 1.2
+    else:  # held: hanging from one true corner over the table
+        k = int(rng.integers(0, len(corners_uv)))
+        holder_vertex = int(np.argmin(np.linalg.norm(mesh.uv_m - corners_uv[k], axis=1)))
+        # Lay the cloth in a vertical plane facing the camera's side, turned so that the
+        # held corner is on top and the cloth's centre straight below it.
+        facing = np.radians(-90.0 + rng.uniform(-40.0, 40.0))
+        normal = np.array([np.cos(facing), np.sin(facing), 0.0])
+        side = np.cross([0.0, 0.0, 1.0], normal)
+        centre_uv = mesh.uv_m.mean(axis=0)
+        d = centre_uv - mesh.uv_m[holder_vertex]
+        d /= np.linalg.norm(d)
+        rot = np.array([[d[1], -d[0]], [d[0], d[1]]])  # turns d onto (0, 1), "down" in uv
+        uv = (mesh.uv_m - mesh.uv_m[holder_vertex]) @ rot.T
+        hang = uv[:, 1].max()
+        top = table_top + hang + rng.uniform(0.05, 0.15)
+        verts = np.array([0.0, 0.0, top]) + uv[:, :1] * side[None] - uv[:, 1:2] * np.array([[0.0, 0.0, 1.0]])
+        holder_position = verts[holder_vertex].copy()
+        target = np.array([0.0, 0.0, top - 0.5 * hang])
+        settle_s = 1.5
+    T_world_cam = _camera_pose(rng, target)
+    return LaundrySpec(
+        seed=seed, cloth_kind=kind, cloth=mesh, printed=printed, texture_rgb=texture, material=material,
+        corners_uv=corners_uv, corner_names=names, outline_ids=material_outline(mesh), state=state,
+        cloth_vertices_world=verts, holder_vertex=holder_vertex, holder_position=holder_position,
+        table_top_z=float(table_top), boxes=boxes, camera=camera, T_world_cam=T_world_cam, settle_s=settle_s,
+    )
+
+
+# ----------------------------------------------------------------------------- scene (PyBullet)
+
+
+class LaundryScene:
+    """A laundry scene running in PyBullet: settled cloth, table, camera with noise.
+
+    spec : LaundrySpec (``laundry_spec(seed)``)
+    noise : add sensor noise to rendered frames (its random stream comes from the seed)
+    noise_model : DepthNoiseModel, Kinect-like by default
+
+    After construction the cloth has settled for ``spec.settle_s``; ``step(dt)`` advances
+    the world, ``render()`` returns what the sensor sees now, ``render_empty()`` the same
+    view without the cloth (a reference picture of the empty table), and the accessors
+    below give the ground truth. Use as a context manager or call ``close()``.
+    """
+
+    def __init__(self, spec: LaundrySpec, noise: bool = True, noise_model: DepthNoiseModel | None = None):
+        self.spec = spec
+        self.noise = bool(noise)
+        self.noise_model = noise_model or DepthNoiseModel()
+        self.camera = spec.camera
+        self.T_world_cam = np.asarray(spec.T_world_cam, dtype=np.float64)
+        _, noise_seq = np.random.SeedSequence(spec.seed).spawn(2)
+        self._noise_rng = np.random.default_rng(noise_seq)
+        self.physics = ClothPhysics(timestep_s=spec.timestep_s)
+        try:
+            for box in spec.boxes:
+                self.physics.add_box(box.half_extents_m, box.position, box.quat_xyzw, box.rgba)
+            self.cloth_id = self.physics.add_cloth(spec.cloth, spec.cloth_vertices_world, spec.material)
+            self.holder: Gripper | None = None
+            if spec.holder_vertex is not None:
+                self.holder = self.physics.add_gripper(spec.holder_position)
+                self.holder.close_on(self.physics.nodes_near(spec.holder_position, HOLDER_RADIUS_M))
+            self.virtual_camera = VirtualCamera(self.camera, self.T_world_cam, lighting=spec.lighting)
+            self.physics.advance(spec.settle_s)
+        except Exception:
+            self.close()
+            raise
+        self.frame_index = 0
+        self._last_mask: np.ndarray | None = None
+        log.info("laundry scene %s", spec.describe())
+
+    @classmethod
+    def from_seed(cls, seed: int, noise: bool = True, **spec_options) -> "LaundryScene":
+        """``LaundryScene(laundry_spec(seed, **spec_options), noise)``."""
+        return cls(laundry_spec(seed, **spec_options), noise=noise)
+
+    def __enter__(self) -> "LaundryScene":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Disconnect PyBullet (idempotent)."""
+        if getattr(self, "physics", None) is not None:
+            self.physics.close()
+            self.physics = None
+
+    # -- time ---------------------------------------------------------------------------------
+
+    @property
+    def fps(self) -> float:
+        return 30.0
+
+    @property
+    def time_s(self) -> float:
+        """Seconds since frame 0."""
+        return self.frame_index / self.fps
+
+    def step(self) -> None:
+        """Advance one frame period (1/30 s)."""
+        self.physics.advance(1.0 / self.fps)
+        self.frame_index += 1
+
+    def release_holder(self) -> None:
+        """The holder of a ``held`` cloth lets go (nothing happens for other states)."""
+        if self.holder is not None:
+            self.holder.open()
+
+    # -- sensor -------------------------------------------------------------------------------
+
+    def _frame(self, rgb: np.ndarray, depth: np.ndarray) -> RGBDFrame:
+        if self.noise:
+            depth = add_depth_noise(depth, self.camera.K, self.noise_model, self._noise_rng)
+            rgb = add_colour_noise(rgb, self.noise_model.colour_sigma, self._noise_rng)
+        return RGBDFrame(rgb=rgb, depth_m=depth, camera=self.camera, timestamp_s=self.time_s, seq=self.frame_index)
+
+    def render(self) -> RGBDFrame:
+        """The current frame as the sensor sees it (with noise if the scene has it)."""
+        image = self.virtual_camera.render(self.physics, self.spec.texture_rgb)
+        self._last_mask = image.body_ids == self.cloth_id
+        return self._frame(image.rgb, image.depth_m)
+
+    def render_empty(self) -> RGBDFrame:
+        """The same view without the cloth: what the sensor saw of the empty table."""
+        image = self.virtual_camera.render_rigid(self.physics)
+        return self._frame(image.rgb, image.depth_m)
+
+    def cloth_mask(self) -> np.ndarray:
+        """(H, W) bool, where the last ``render()`` saw the cloth (exact, before noise)."""
+        if self._last_mask is None:
+            raise ValueError("cloth_mask: nothing rendered yet (call render first)")
+        return self._last_mask
+
+    # -- ground truth -------------------------------------------------------------------------
+
+    @property
+    def faces(self) -> np.ndarray:
+        """(F, 3) int64 cloth faces."""
+        return self.spec.cloth.faces
+
+    @property
+    def uv_m(self) -> np.ndarray:
+        """(V, 2) float64 material coordinates of the cloth vertices, metres."""
+        return self.spec.cloth.uv_m
+
+    def cloth_vertices_world(self) -> np.ndarray:
+        """(V, 3) float64 cloth vertices now, metres, world frame."""
+        return self.physics.cloth_vertices()
+
+    def cloth_vertices_cam(self) -> np.ndarray:
+        """(V, 3) float64 cloth vertices now, metres, camera optical frame."""
+        return self.virtual_camera.world_to_camera(self.physics.cloth_vertices())
+
+    def corner_vertices(self) -> np.ndarray:
+        """(C,) int64 cloth vertex at each true corner (the corners are mesh vertices)."""
+        uv = self.uv_m
+        ids = np.array([np.argmin(np.linalg.norm(uv - c, axis=1)) for c in self.spec.corners_uv], dtype=np.int64)
+        return ids
+
+    def corners_world(self) -> np.ndarray:
+        """(C, 3) float64 metres, world frame: where the true corners are now."""
+        return self.cloth_vertices_world()[self.corner_vertices()]
+
+    def support_height(self, xy_world: np.ndarray) -> np.ndarray:
+        """Height of the surface under world points: the table top over the table, else the floor.
+
+        xy_world : (N, 2) float metres; returns (N,) float64 metres
+        """
+        xy = np.asarray(xy_world, dtype=np.float64).reshape(-1, 2)
+        hx, hy = TABLE_HALF_XY_M
+        over = (np.abs(xy[:, 0]) <= hx) & (np.abs(xy[:, 1]) <= hy)
+        return np.where(over, self.spec.table_top_z, 0.0)
+
+    def clearance_above_support(self) -> np.ndarray:
+        """(V,) float64 metres: height of each cloth node above the surface under it."""
+        v = self.cloth_vertices_world()
+        return v[:, 2] - self.support_height(v[:, :2])
+
+    def boundary_vertices(self) -> np.ndarray:
+        """(B,) int64 sorted ids of the cloth's boundary vertices."""
+        return boundary_vertices(self.faces)
+
+    def to_world(self, points_cam: np.ndarray) -> np.ndarray:
+        """(N, 3) camera-frame points, metres, to (N, 3) world points."""
+        return transform_points(self.T_world_cam, points_cam)

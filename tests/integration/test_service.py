@@ -1,0 +1,300 @@
+"""The perception service in this process, on loopback with free ports: control requests,
+bad input, and the state machine's re-initialisation rules.
+
+Frames are a rendered textured sheet (tests.render) moving forth and back, so its true
+surface is known in every frame. Every wait has a timeout; every test stops what it starts.
+"""
+
+import dataclasses
+import importlib.util
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+import zmq
+
+from ipc.codec import encode
+from ipc.messages import (
+    CameraInfo,
+    InitialiseRequest,
+    MeshEstimate,
+    ResetRequest,
+    RGBDFrame,
+    SetParametersRequest,
+    StatusReply,
+    StatusRequest,
+)
+from ipc.transport import Publisher, RemoteError, RequestClient, Subscriber
+from perception import TrackerConfig
+from perception.service import PerceptionCore, PerceptionService, RerunViewer, ServiceConfig, apply_parameters
+from perception.sources import FrameSource, Pacing, publish_frames
+from tests.render import frame_of, grid_surface, plane_points, texture
+
+pytestmark = pytest.mark.timeout(120)
+
+ANY = "tcp://127.0.0.1:*"
+CAM = CameraInfo.from_fov(320, 240, np.deg2rad(45))
+SIZE = (0.6, 0.45)
+CENTRE = np.array([0.0, 0.0, 1.3])
+STEP = np.array([0.008, -0.004, 0.01])  # metres per frame
+N = 12  # frames of one forth-and-back cycle: frame N is frame 0 again, so a loop is smooth
+
+
+def shift(k):
+    k = k % N
+    return STEP * (k if k <= N // 2 else N - k)
+
+
+def near_surface(estimate, seq=None):
+    """Median and largest distance (m) of the vertices from the true sheet of frame ``seq``,
+    and whether all lie over the sheet's rectangle (within 3 cm)."""
+    centre = CENTRE + shift(estimate.seq if seq is None else seq)
+    v = estimate.vertices - centre
+    dz = np.abs(v[:, 2])
+    inside = np.all(np.abs(v[:, :2]) <= np.array(SIZE) / 2 + 0.03)
+    return float(np.median(dz)), float(dz.max()), bool(inside)
+
+
+@pytest.fixture(scope="module")
+def frames():
+    uv, faces = grid_surface(*SIZE, 31, 24)
+    tex = texture(np.random.default_rng(7))
+    return [frame_of(plane_points(uv, CENTRE + shift(k), SIZE), uv, faces, tex, CAM, SIZE, t=k / 10, seq=k,
+                     noise_m=0.001, rng=np.random.default_rng(k)) for k in range(N)]
+
+
+def wait_until(predicate, timeout_s, poll_s=0.02):
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(poll_s)
+    return predicate()
+
+
+def status_fields(reply: StatusReply) -> dict:
+    """The status line's key=value tokens (error= runs to the end of the line)."""
+    line = reply.message
+    error = ""
+    if " error=" in line:
+        line, error = line.split(" error=", 1)
+    out = dict(token.split("=", 1) for token in line.split())
+    if error:
+        out["error"] = error
+    return out
+
+
+class ListSource(FrameSource):
+    name = "test frames"
+
+    def __init__(self, frames):
+        self._frames = frames
+
+    def frames(self):
+        yield from self._frames
+
+
+class Running:
+    """A PerceptionService thread, optionally a frame publisher thread looping ``frames``,
+    a subscriber to its estimates and a control client."""
+
+    def __init__(self, frames=None, frames_endpoint=None, **config):
+        self.stop = threading.Event()
+        self.threads = []
+        self.publisher = None
+        if frames is not None:
+            self.publisher = Publisher(ANY, source="test frames", heartbeat_period_s=0.2)
+            frames_endpoint = self.publisher.endpoint
+            self._start(publish_frames, ListSource(frames), self.publisher.publish, pacing=Pacing("rate", 15.0),
+                        loop=True, stop=self.stop)
+        self.service = PerceptionService(TrackerConfig.realtime(), ServiceConfig(
+            frames=frames_endpoint, estimates=ANY, control=ANY, **config))
+        self._start(self.service.run, self.stop)
+        self.estimates = Subscriber(self.service.endpoints["estimates"], accept=(MeshEstimate,))
+        self.control = RequestClient(self.service.endpoints["control"], timeout_s=5.0, attempts=1)
+
+    def _start(self, target, *args, **kw):
+        t = threading.Thread(target=target, args=args, kwargs=kw, daemon=True)
+        t.start()
+        self.threads.append(t)
+
+    def status(self, request_id=0):
+        return self.control.request(StatusRequest(request_id=request_id))
+
+    def next_estimate(self, timeout_s=20.0):
+        got = self.estimates.recv_latest(timeout_s=timeout_s)
+        assert got is not None, f"no estimate within {timeout_s} s; status: {self.status().message}"
+        return got
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.stop.set()
+        for t in self.threads:
+            t.join(timeout=10)
+        self.estimates.close()
+        self.control.close()
+        self.service.close()
+        if self.publisher is not None:
+            self.publisher.close()
+
+
+def test_control_requests_round_trip(frames):
+    with Running(frames, auto_init=False) as run:
+        reply = run.status(request_id=11)
+        assert reply.request_id == 11 and reply.state == "idle" and reply.last_seq == -1
+        assert reply.parameters["lambda_d"] == 0.6 and reply.parameters["features"] == "klt"
+        assert "outlier_radii_m" not in reply.parameters  # a tuple: not settable over the wire
+        assert wait_until(lambda: int(status_fields(run.status())["frames_in"]) >= 3, 10.0)
+        assert run.estimates.recv_latest(timeout_s=0.3) is None  # idle: frames counted, not tracked
+        assert status_fields(run.status())["processed"] == "0"
+
+        with pytest.raises(RemoteError, match=r"InitialiseRequest.mask: expected shape \(240, 320\)") as e:
+            run.control.request(InitialiseRequest(request_id=2, mask=np.ones((10, 10), np.uint8)))
+        assert e.value.code == "invalid" and e.value.reply.request_id == 2
+        # The mask applies to the next frame, which may be any of the cycle: where the sheet is in all.
+        mask = np.all([f.depth_m < 2.0 for f in frames], axis=0)  # the wall behind is at 2.5 m
+        reply = run.control.request(InitialiseRequest(request_id=3, mask=mask))
+        assert reply.state == "initialising" and reply.request_id == 3
+        est = run.next_estimate()
+        med, _, inside = near_surface(est)
+        assert med < 0.006 and inside, (med, inside)
+        assert wait_until(lambda: run.status().state == "tracking" and run.status().frames_processed >= 3, 10.0)
+        n_vertices = len(est.vertices)
+
+        reply = run.control.request(SetParametersRequest(request_id=4, parameters={"lambda_d": 0.5, "max_iterations": 4}))
+        assert reply.parameters["lambda_d"] == 0.5 and reply.parameters["max_iterations"] == 4
+        for params, message in (({"lambda_x": 1.0}, "unknown tracker parameter.*lambda_x"),
+                                ({"max_iterations": "ten"}, "'max_iterations': expected int, got str"),
+                                ({"alpha": -1.0}, "TrackerConfig.alpha"),
+                                ({"solver": "newton"}, "solver method"),
+                                ({"segmentation": "on"}, "'segmentation' cannot be set over the wire")):
+            with pytest.raises(RemoteError, match=message) as e:
+                run.control.request(SetParametersRequest(parameters=params))
+            assert e.value.code == "invalid"
+        after = run.status()
+        assert after.parameters["lambda_d"] == 0.5 and after.parameters["alpha"] == 0.5  # refused requests change nothing
+        assert after.parameters["solver"] == "conjugate"
+        est = run.next_estimate()
+        assert len(est.vertices) == n_vertices and near_surface(est)[0] < 0.006  # still tracking with the new weights
+
+        # An empty mask cannot be built in Python; sent anyway, the service refuses it as a protocol error.
+        empty = InitialiseRequest(request_id=5)
+        object.__setattr__(empty, "mask", np.zeros((240, 320), np.uint8))
+        with pytest.raises(RemoteError, match="no non-zero pixel") as e:
+            run.control.request(empty)
+        assert e.value.code == "protocol"
+
+        assert run.control.request(ResetRequest(request_id=6)).state == "idle"
+        run.estimates.recv_latest(timeout_s=0.3)  # one that was on its way
+        assert run.estimates.recv_latest(timeout_s=0.5) is None
+        assert run.status().state == "idle" and run.status().frames_processed == 0
+
+
+def test_bad_frames_are_counted_and_tracking_goes_on(frames):
+    ctx = zmq.Context.instance()
+    raw = ctx.socket(zmq.PUB)
+    raw.setsockopt(zmq.LINGER, 0)
+    port = raw.bind_to_random_port("tcp://127.0.0.1")
+    try:
+        with Running(frames_endpoint=f"tcp://127.0.0.1:{port}", stale_after_s=30.0) as run:
+            first = None
+            deadline = time.monotonic() + 20
+            while first is None and time.monotonic() < deadline:  # the subscription takes a moment to arrive
+                raw.send_multipart(encode(frames[0]))
+                first = run.estimates.recv_latest(timeout_s=0.2)
+            assert first is not None and first.seq == 0
+
+            def send_and_count(message_frames, key):
+                before = int(status_fields(run.status()).get(key, 0))
+                raw.send_multipart(message_frames)
+                assert wait_until(lambda: int(status_fields(run.status()).get(key, 0)) == before + 1, 10.0), \
+                    run.status().message
+
+            small = CameraInfo.from_fov(160, 120, np.deg2rad(45))
+            send_and_count(encode(RGBDFrame(np.zeros((120, 160, 3), np.uint8), np.full((120, 160), 1.3, np.float32),
+                                            small, 0.1, 1)), "rejected_camera_changed")
+            nan_depth = dataclasses.replace(frames[1], depth_m=np.full((240, 320), np.nan, np.float32), seq=2)
+            send_and_count(encode(nan_depth), "rejected_no_depth")
+            send_and_count([b"\x93 not a message"], "malformed")
+            fields = status_fields(run.status())
+            assert fields["error"].startswith("frame 2: no valid depth pixel") and fields["rejected"] == "2"
+
+            got = []
+            for k in range(1, 6):
+                raw.send_multipart(encode(dataclasses.replace(frames[k], seq=10 + k)))
+                est = run.next_estimate(timeout_s=10.0)
+                got.append(est)
+                assert len(est.vertices) == len(first.vertices)
+                med, _, inside = near_surface(est, seq=k)
+                assert med < 0.006 and inside, (k, med)
+            assert [e.seq for e in got] == [11, 12, 13, 14, 15]
+            reply = run.status()
+            assert reply.state == "tracking" and reply.last_seq == 15 and reply.frames_processed == 6
+            assert status_fields(reply)["processed"] == "6"
+    finally:
+        raw.close()
+
+
+# -- the state machine, without sockets ----------------------------------------------------
+
+
+def test_apply_parameters_is_all_or_nothing():
+    cfg = TrackerConfig()
+    new = apply_parameters(cfg, {"lambda_c": 2, "use_depth": False, "features": "orb"})
+    assert (new.lambda_c, new.use_depth, new.features) == (2.0, False, "orb") and isinstance(new.lambda_c, float)
+    with pytest.raises(ValueError, match="unknown tracker parameter.*: nope"):
+        apply_parameters(cfg, {"lambda_c": 2.0, "nope": 1})
+    with pytest.raises(ValueError, match="'use_depth': expected bool, got int"):
+        apply_parameters(cfg, {"use_depth": 1})
+
+
+def test_lost_frames_reinitialise_after_n_and_discontinuities_follow_auto_init(frames):
+    core = PerceptionCore(TrackerConfig.realtime(), reinit_after_lost=2)
+    assert core.state == "initialising"
+    assert core.handle_frame(frames[0]) is not None and core.state == "tracking"
+    empty = dataclasses.replace(frames[1], depth_m=np.full((240, 320), 2.5, np.float32))  # the sheet is gone
+    assert core.handle_frame(empty).lost and core.state == "lost"
+    assert core.handle_frame(empty).lost and core.state == "initialising"  # second lost frame: re-initialise
+    assert core.counters.reinitialisations == 1
+    est = core.handle_frame(frames[2])
+    assert core.state == "tracking" and core.frames_since_init == 1 and near_surface(est, seq=2)[0] < 0.006
+    core.discontinuity("test")
+    assert core.state == "initialising" and core.counters.reinitialisations == 2
+
+    manual = PerceptionCore(TrackerConfig.realtime(), auto_init=False, reinit_after_lost=1)
+    assert manual.state == "idle" and manual.handle_frame(frames[0]) is None
+    manual.request_initialise(None)
+    manual.handle_frame(frames[0])
+    manual.handle_frame(empty)
+    manual.discontinuity("test")
+    assert manual.state == "lost"  # without auto_init the service never re-initialises by itself
+    with pytest.raises(ValueError, match="reinit_after_lost"):
+        PerceptionCore(reinit_after_lost=-1)
+
+
+def test_a_failed_mask_initialisation_goes_idle_and_says_why(frames):
+    core = PerceptionCore(TrackerConfig.realtime(), auto_init=False)
+    tiny = np.zeros((240, 320), np.uint8)
+    tiny[0, 0] = 1  # a single pixel: too small to carry a mesh
+    core.request_initialise(tiny)
+    assert core.handle_frame(frames[0]) is None
+    assert core.state == "idle" and core.counters.rejected == {"init_failed": 1}
+    assert core.last_error.startswith("frame 0: initialisation failed:")
+
+
+def test_viewer_records_frames_and_meshes_or_names_its_extra(frames, tmp_path, monkeypatch):
+    core = PerceptionCore(TrackerConfig.realtime())
+    est = core.handle_frame(frames[0])
+    if importlib.util.find_spec("rerun") is not None:
+        viewer = RerunViewer(str(tmp_path / "view.rrd"))
+        viewer.show(frames[0], est)
+        viewer.show(frames[1], None)
+        viewer.close()
+        assert (tmp_path / "view.rrd").stat().st_size > 10_000  # images, points and the mesh
+    monkeypatch.setitem(sys.modules, "rerun", None)
+    with pytest.raises(RuntimeError, match=r"live viewer needs the Python module 'rerun'.*clothkit\[viewer\]"):
+        RerunViewer()
