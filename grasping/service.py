@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import threading
 import time
 from collections import OrderedDict
@@ -45,6 +46,9 @@ class PlannerService:
     kinds : kinds this service serves, a subset of ``("corner", "boundary", "highest")``;
         a request's kinds outside it are skipped, and a request with none inside it is
         answered ``invalid``
+    max_age_s : a request without its own estimate is answered ``not_ready`` when the
+        newest estimate arrived longer ago than this (seconds; the perception service
+        stopped or lost the frames); None plans on an estimate of any age
 
     A request plans on its own ``estimate`` when it carries one, else on the newest
     estimate received (``on_estimate``). The visibility term is used when the frame the
@@ -53,21 +57,26 @@ class PlannerService:
     merged best first and cut to the request's ``max_candidates``.
     """
 
-    def __init__(self, config: GraspPlannerConfig | None = None, kinds=MODES):
+    def __init__(self, config: GraspPlannerConfig | None = None, kinds=MODES, max_age_s: float | None = None):
         config = config if config is not None else GraspPlannerConfig()
         kinds = tuple(kinds)
         if not kinds or len(set(kinds)) != len(kinds) or any(k not in MODES for k in kinds):
             raise ValueError(f"Expected kinds: distinct values among {MODES}, got {kinds!r}")
+        if max_age_s is not None and not (math.isfinite(max_age_s) and max_age_s > 0):
+            raise ValueError(f"Expected max_age_s > 0 or None, got {max_age_s}")
         self.kinds = kinds
+        self.max_age_s = max_age_s
         # One planner per kind: each caches its analysis of the canonical mesh.
         self._planners = {k: GraspPlanner(dataclasses.replace(config, mode=k)) for k in kinds}
         self.latest: MeshEstimate | None = None
+        self._latest_at = -math.inf  # time.monotonic() when ``latest`` arrived
         self._frames: OrderedDict = OrderedDict()
         self.requests = 0
 
     def on_estimate(self, estimate: MeshEstimate) -> None:
         """Keep ``estimate`` as the newest one."""
         self.latest = estimate
+        self._latest_at = time.monotonic()
 
     def on_frame(self, frame: RGBDFrame) -> None:
         """Remember ``frame`` (the last ``FRAME_HISTORY`` frames are kept)."""
@@ -94,9 +103,15 @@ class PlannerService:
         if not wanted:
             return ErrorReply("invalid", f"this planner serves {', '.join(self.kinds)} grasps, "
                                          f"not {', '.join(request.kinds)}", rid)
-        estimate = request.estimate if request.estimate is not None else self.latest
+        estimate = request.estimate
         if estimate is None:
-            return ErrorReply("not_ready", "no mesh estimate received yet; retry later", rid)
+            if self.latest is None:
+                return ErrorReply("not_ready", "no mesh estimate received yet; retry later", rid)
+            age = time.monotonic() - self._latest_at
+            if self.max_age_s is not None and age > self.max_age_s:
+                return ErrorReply("not_ready", f"the newest mesh estimate arrived {age:.1f} s ago, over the "
+                                               f"{self.max_age_s:g} s limit; retry later", rid)
+            estimate = self.latest
         frame = self.frame_for(estimate)
         t0 = time.perf_counter()
         plans = []

@@ -19,13 +19,15 @@ import sys
 import threading
 
 from ipc import endpoints
+from ipc.transport import STALE_AFTER_S
+from launch_scripts.publish_frames import OneLineParser
 from perception.features import FEATURE_KINDS
 from perception.service import PerceptionService, ServiceConfig
 from perception.track import config_from_args
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m launch_scripts.perception_service", description=__doc__.split("\n\n")[0])
+    p = OneLineParser(prog="python -m launch_scripts.perception_service", description=__doc__.split("\n\n")[0])
     g = p.add_argument_group("endpoints")
     g.add_argument("--frames", default=endpoints.FRAMES, help=f"frame publisher to connect to (default {endpoints.FRAMES})")
     g.add_argument("--estimates", default=endpoints.ESTIMATES, help=f"endpoint to publish estimates on (default {endpoints.ESTIMATES})")
@@ -38,8 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="wait for an InitialiseRequest instead of initialising on the first frame")
     g.add_argument("--reinit-after-lost", type=int, default=0, metavar="N",
                    help="re-initialise after N consecutive lost or rejected frames (default 0: never)")
-    g.add_argument("--stale-after-s", type=float, default=3.0,
-                   help="seconds of silence after which the frame source counts as gone (default 3)")
+    g.add_argument("--stale-after-s", type=float, default=STALE_AFTER_S,
+                   help=f"seconds of silence after which the frame source counts as gone (default {STALE_AFTER_S:g})")
     g.add_argument("--viewer", action="store_true", help="show frames and meshes live in a Rerun viewer (rerun-sdk)")
     g.add_argument("--viewer-save", metavar="FILE.rrd", help="save the Rerun recording to a file instead")
     g.add_argument("--verbose", "-v", action="count", default=0, help="-v: info, -vv: debug logging")

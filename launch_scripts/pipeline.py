@@ -35,6 +35,7 @@ import time
 from ipc import endpoints
 from ipc.messages import MeshEstimate, StatusRequest
 from ipc.transport import RemoteError, RequestClient, RequestTimeout, Subscriber
+from launch_scripts.publish_frames import OneLineParser
 
 FREE_PORT = "tcp://127.0.0.1:*"
 #: Seconds a child gets to bind its sockets (imports of NumPy, OpenCV, PyBullet included).
@@ -45,7 +46,7 @@ _PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m launch_scripts.pipeline", description=__doc__.split("\n\n")[0],
+    p = OneLineParser(prog="python -m launch_scripts.pipeline", description=__doc__.split("\n\n")[0],
                                 usage="%(prog)s [options] SOURCE [source options]")
     p.add_argument("--default-endpoints", action="store_true", help="bind the fixed ports of ipc.endpoints")
     p.add_argument("--preset", choices=("paper", "realtime"), default="realtime", help="tracker preset (default realtime)")
@@ -71,6 +72,7 @@ def start_child(name: str, module: str, args: list[str], procs: dict) -> dict:
     """Start ``python -m module args`` as ``procs[name]``; return the endpoints it prints as
     one JSON line once bound (its --print-endpoint(s) option)."""
     command = [sys.executable, "-m", module, *args]
+    # preexec_fn is unsafe once threads run; children are started before the monitor's sockets (and threads) exist.
     preexec = _die_with_parent if sys.platform.startswith("linux") else None
     procs[name] = proc = subprocess.Popen(command, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True,
                                           preexec_fn=preexec)

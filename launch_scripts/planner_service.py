@@ -1,9 +1,10 @@
 """Run the grasp planner service (``grasping.service``) until interrupted.
 
     python -m launch_scripts.planner_service [--estimates EP] [--bind EP] [--frames EP]
-        [--kinds corner boundary highest] [--edge-approach pinch|normal] [--pinch-inset-m M]
+        [--kinds corner boundary highest] [--max-estimate-age-s S] [--edge-approach pinch|normal] [--pinch-inset-m M]
         [--T-world-cam 16 numbers] [--workspace-min X Y Z] [--workspace-max X Y Z]
-        [--min-score S] [--min-confidence C] [--opening-width-m W] [--print-endpoint]
+        [--min-score S] [--min-confidence C] [--opening-width-m W] [--outline-window-spacings L]
+        [--corner-max-angle-deg A] [--print-endpoint]
         [--log-level LEVEL]
 
 It subscribes to the perception service's MeshEstimate stream (default
@@ -69,6 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="RGBDFrame publisher to connect to for the visibility term (default: none)")
     p.add_argument("--kinds", nargs="+", choices=MODES, default=list(MODES),
                    help="grasp kinds served (default: all)")
+    p.add_argument("--max-estimate-age-s", type=_finite, default=None,
+                   help="answer not_ready when the newest estimate is older than this (default: any age)")
     defaults = GraspPlannerConfig()
     p.add_argument("--edge-approach", choices=EDGE_APPROACHES, default=defaults.edge_approach,
                    help=f"corner and boundary approach (default {defaults.edge_approach})")
@@ -87,6 +90,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="no plans on estimates less confident (0-1)")
     p.add_argument("--opening-width-m", type=_finite, default=defaults.opening_width_m,
                    help=f"finger opening, metres (default {defaults.opening_width_m})")
+    p.add_argument("--outline-window-spacings", type=_finite, default=defaults.outline_window_spacings,
+                   help="half-length of the chords measuring the outline's turn, in mesh spacings "
+                        f"(default {defaults.outline_window_spacings:g}); features shorter than ~1.5 times it are not resolved")
+    p.add_argument("--corner-max-angle-deg", type=_finite, default=math.degrees(defaults.corner_max_angle_rad),
+                   help=f"largest interior angle of a corner, degrees (default {math.degrees(defaults.corner_max_angle_rad):g})")
     p.add_argument("--print-endpoint", action="store_true",
                    help='print {"planner": ENDPOINT} as one JSON line on stdout once serving')
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
@@ -96,7 +104,9 @@ def build_parser() -> argparse.ArgumentParser:
 def config_from_args(args) -> GraspPlannerConfig:
     """GraspPlannerConfig of the parsed options; raises ValueError (one line) for bad values."""
     kw = dict(edge_approach=args.edge_approach, pinch_inset_m=args.pinch_inset_m, min_score=args.min_score,
-              min_confidence=args.min_confidence, opening_width_m=args.opening_width_m)
+              min_confidence=args.min_confidence, opening_width_m=args.opening_width_m,
+              outline_window_spacings=args.outline_window_spacings,
+              corner_max_angle_rad=math.radians(args.corner_max_angle_deg))
     if args.T_world_cam is not None:
         kw["T_world_cam"] = np.asarray(args.T_world_cam, dtype=np.float64).reshape(4, 4)
     if args.up is not None:
@@ -114,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     if len(set(args.kinds)) != len(args.kinds):
         parser.error(f"--kinds: repeated kind in {' '.join(args.kinds)}")
     try:
-        service = PlannerService(config_from_args(args), kinds=args.kinds)
+        service = PlannerService(config_from_args(args), kinds=args.kinds, max_age_s=args.max_estimate_age_s)
     except ValueError as e:
         parser.error(str(e))
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")

@@ -22,6 +22,7 @@ import sys
 import threading
 
 from ipc import endpoints
+from ipc.transport import HEARTBEAT_PERIOD_S
 from perception.sources import (
     KinectSource,
     Pacing,
@@ -32,7 +33,14 @@ from perception.sources import (
     SourceError,
     run_publisher,
 )
-from perception.sources._kinect import COLOUR_RESOLUTIONS, DEPTH_MODES, FRAME_RATES
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line on stderr (no usage block) and exit status 2
+    (shared by the launch scripts of the perception pipeline)."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n")
 
 
 def _positive_int(text: str) -> int:
@@ -56,23 +64,25 @@ def _non_negative_float(text: str) -> float:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    common = argparse.ArgumentParser(add_help=False)
+    common = OneLineParser(add_help=False)
     g = common.add_argument_group("publishing")
     g.add_argument("--endpoint", default=endpoints.FRAMES,
                    help=f"endpoint to bind (default {endpoints.FRAMES}; tcp://127.0.0.1:* picks a free port)")
-    g.add_argument("--pacing", choices=Pacing.MODES, default="realtime",
-                   help="realtime: keep the frames' timestamps' spacing (default); rate: --rate-hz; fast: no wait")
+    g.add_argument("--pacing", choices=Pacing.MODES,
+                   help="realtime: keep the spacing of the frames' timestamps (default for files and sim); "
+                        "rate: --rate-hz; fast: no wait (default for cameras, which pace themselves)")
     g.add_argument("--rate-hz", type=float, help="frames per second with --pacing rate")
     g.add_argument("--loop", action="store_true", help="start over at the end (files and sim)")
     g.add_argument("--max-frames", type=_positive_int, help="stop after this many frames")
     g.add_argument("--start-delay-s", type=_non_negative_float, default=0.5,
                    help="wait after binding so that waiting subscribers get the first frame (default 0.5)")
-    g.add_argument("--heartbeat-period-s", type=float, default=1.0, help="seconds between heartbeats (default 1)")
+    g.add_argument("--heartbeat-period-s", type=float, default=HEARTBEAT_PERIOD_S,
+                   help=f"seconds between heartbeats (default {HEARTBEAT_PERIOD_S:g})")
     g.add_argument("--print-endpoint", action="store_true",
                    help='print {"frames": ENDPOINT} as one JSON line on stdout once bound')
     g.add_argument("--verbose", "-v", action="count", default=0, help="-v: info, -vv: debug logging")
 
-    parser = argparse.ArgumentParser(prog="python -m launch_scripts.publish_frames",
+    parser = OneLineParser(prog="python -m launch_scripts.publish_frames",
                                      description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="source", required=True, metavar="{sim,sequence,realsense,kinect,rosbag}")
 
@@ -94,9 +104,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--serial", help="device serial number (default: the first camera)")
 
     p = sub.add_parser("kinect", parents=[common], help="an Azure Kinect (pyk4a)")
-    p.add_argument("--colour-resolution", choices=list(COLOUR_RESOLUTIONS), default="720p")
-    p.add_argument("--depth-mode", choices=list(DEPTH_MODES), default="nfov_unbinned")
-    p.add_argument("--fps", type=int, choices=list(FRAME_RATES), default=30)
+    p.add_argument("--colour-resolution", choices=KinectSource.COLOUR_RESOLUTIONS, default="720p")
+    p.add_argument("--depth-mode", choices=KinectSource.DEPTH_MODES, default="nfov_unbinned")
+    p.add_argument("--fps", type=int, choices=KinectSource.FRAME_RATES, default=30)
     p.add_argument("--device", type=int, default=0, help="device index (default 0)")
 
     p = sub.add_parser("rosbag", parents=[common], help="a ROS 1 or ROS 2 bag (rosbags)")
@@ -135,7 +145,7 @@ def main(argv=None) -> int:
             print(json.dumps({"frames": endpoint}), flush=True)
 
     try:
-        pacing = Pacing(args.pacing, args.rate_hz)
+        pacing = Pacing(args.pacing or ("fast" if args.source in ("realsense", "kinect") else "realtime"), args.rate_hz)
         with open_source(args) as source:
             run_publisher(source, args.endpoint, pacing=pacing, loop=args.loop, max_frames=args.max_frames,
                           start_delay_s=args.start_delay_s, heartbeat_period_s=args.heartbeat_period_s, stop=stop,

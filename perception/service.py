@@ -49,6 +49,7 @@ from ipc.messages import (
     StatusReply,
     StatusRequest,
 )
+from ipc.transport import HEARTBEAT_PERIOD_S, STALE_AFTER_S, Publisher, ReplyServer, Subscriber
 from perception.tracker import MeshTracker, TrackerConfig, TrackingError, config_with
 
 log = logging.getLogger(__name__)
@@ -225,13 +226,11 @@ class PerceptionCore:
     def _track(self, frame: RGBDFrame) -> MeshEstimate | None:
         cam, ref = frame.camera, self._mesh_camera
         if (cam.width, cam.height) != (ref.width, ref.height) or not np.allclose(cam.K, ref.K):
-            self._bad_frame()
             return self._reject("camera_changed", f"frame {frame.seq}: camera {cam.width}x{cam.height} fx={cam.fx:.6g} "
                                 f"differs from the mesh's {ref.width}x{ref.height} fx={ref.fx:.6g}")
         try:
             estimate = self.tracker.track(frame)
         except TrackingError as e:
-            self._bad_frame()
             return self._reject("tracker", f"frame {frame.seq}: {e}")
         return self._accept(frame, estimate)
 
@@ -255,6 +254,9 @@ class PerceptionCore:
             self._reinitialise()
 
     def _reject(self, kind: str, message: str, log_it: bool = True) -> None:
+        """Count a frame not tracked, as ``kind``; log the first of each kind."""
+        if self.state in ("tracking", "lost"):
+            self._bad_frame()
         rejected = self.counters.rejected
         rejected[kind] = rejected.get(kind, 0) + 1
         self.last_error = message
@@ -264,7 +266,6 @@ class PerceptionCore:
                 log.warning("%s (later frames rejected as %r are counted in the status, not logged)", message, kind)
         else:
             log.debug("%s", message)
-        return None
 
 
 @dataclass(frozen=True)
@@ -286,8 +287,8 @@ class ServiceConfig:
     control: str = endpoints.PERCEPTION_CONTROL
     auto_init: bool = True
     reinit_after_lost: int = 0
-    stale_after_s: float = 3.0
-    heartbeat_period_s: float = 1.0
+    stale_after_s: float = STALE_AFTER_S
+    heartbeat_period_s: float = HEARTBEAT_PERIOD_S
     poll_s: float = 0.02
     viewer: str | None = None
 
@@ -305,8 +306,6 @@ class PerceptionService:
     """
 
     def __init__(self, tracker_config: TrackerConfig | None = None, config: ServiceConfig = ServiceConfig()):
-        from ipc.transport import Publisher, ReplyServer, Subscriber
-
         self.config = config
         self.core = PerceptionCore(tracker_config, auto_init=config.auto_init, reinit_after_lost=config.reinit_after_lost)
         self.last_latency_ms: float | None = None

@@ -9,7 +9,8 @@ fingertips close. The jaw is the box between the open fingers, in the gripper fr
     |x| <= opening_width_m / 2,   |y| <= finger_width_m / 2,
     -finger_length_m <= z <= fingertip_margin_m      (z = 0 at the fingertips)
 
-and closing anchors every cloth node inside it (``jaw_nodes``).
+and closing anchors the nodes of every cloth triangle whose surface passes through it
+(``jaw_faces``).
 
 Motion (``execute_grasp``): the gripper appears at the pre-grasp pose
 ``position - pregrasp_distance_m * approach``, moves along the approach to the grasp
@@ -20,8 +21,8 @@ until they touch the support surface, at most ``overtravel_m`` further, or stop 
 at the surface if the position is below it. Any other approach stops at the position.
 
 Outcome (``ExecutionResult``): the held nodes, the grasped material point (the point
-of the cloth surface nearest the fingertip centre at closing, among the triangles
-touching held nodes; ``uv`` in the cloth's material coordinates, metres) and whether
+of the held triangles nearest the fingertip centre at closing; ``uv`` in the cloth's
+material coordinates, metres) and whether
 the cloth is lifted clear: every node at least ``clear_margin_m`` above the surface
 under it (table or floor) after settling.
 
@@ -64,6 +65,7 @@ class ExecutionConfig:
     lift_speed_m_s : lifting speed
     settle_s : simulated time after the lift before the cloth is judged
     clear_margin_m : a node at least this high above the surface under it is clear
+    samples_per_edge : surface samples per triangle edge when finding the cloth in the jaw
     """
 
     pregrasp_distance_m: float = 0.10
@@ -77,6 +79,7 @@ class ExecutionConfig:
     lift_speed_m_s: float = 1.0
     settle_s: float = 1.0
     clear_margin_m: float = 0.02
+    samples_per_edge: int = 8
 
     def __post_init__(self):
         for name in ("pregrasp_distance_m", "approach_speed_m_s", "finger_length_m", "finger_width_m",
@@ -89,6 +92,9 @@ class ExecutionConfig:
             value = float(getattr(self, name))
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"ExecutionConfig.{name}: expected a non-negative number, got {value}")
+        if isinstance(self.samples_per_edge, bool) or int(self.samples_per_edge) != self.samples_per_edge \
+                or self.samples_per_edge < 1:
+            raise ValueError(f"ExecutionConfig.samples_per_edge: expected a positive integer, got {self.samples_per_edge}")
 
 
 @dataclass(frozen=True)
@@ -146,37 +152,53 @@ def fingertip_target(pose: GraspPose, support_height_m: float, config: Execution
     return pose.position + min(config.overtravel_m, to_surface) * a
 
 
-def jaw_nodes(points_world: np.ndarray, fingertip_world: np.ndarray, pose: GraspPose,
+def _barycentric_grid(n: int) -> np.ndarray:
+    """(S, 3) float64 barycentric sample points of a triangle, n intervals per edge."""
+    i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1), indexing="ij")
+    keep = i + j <= n
+    i, j = i[keep], j[keep]
+    return np.column_stack([i, j, n - i - j]).astype(np.float64) / n
+
+
+def jaw_faces(points_world: np.ndarray, faces: np.ndarray, fingertip_world: np.ndarray, pose: GraspPose,
               config: ExecutionConfig) -> np.ndarray:
-    """Cloth nodes between the open fingers (the jaw box of the module docstring).
+    """Cloth triangles whose surface passes between the open fingers.
 
-    points_world : (V, 3) float metres, cloth nodes now
+    The jaw (the box of the module docstring) is smaller than the simulated cloth's
+    grid, so testing the nodes alone would miss cloth lying between the fingers: each
+    triangle is sampled ``config.samples_per_edge`` times along each edge, and a triangle
+    with a sample inside the jaw is in it. Closing holds all their nodes (what the
+    fingers pinch moves with them).
+
+    points_world : (V, 3) float metres, cloth nodes now; faces : (F, 3) int
     fingertip_world : (3,) float metres, the fingertip centre
-    returns (K,) int64 node ids, K may be 0
+    returns (K,) int64 face ids, K may be 0
     """
-    local = (np.asarray(points_world, dtype=np.float64) - fingertip_world) @ pose.R  # gripper-frame coordinates
-    inside = ((np.abs(local[:, 0]) <= 0.5 * pose.opening_width_m) & (np.abs(local[:, 1]) <= 0.5 * config.finger_width_m)
-              & (local[:, 2] >= -config.finger_length_m) & (local[:, 2] <= config.fingertip_margin_m))
-    return np.flatnonzero(inside).astype(np.int64)
+    p = np.asarray(points_world, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    weights = _barycentric_grid(config.samples_per_edge)
+    samples = np.einsum("sk,fkd->fsd", weights, p[f])  # (F, S, 3)
+    local = (samples - fingertip_world) @ pose.R  # gripper-frame coordinates
+    inside = ((np.abs(local[..., 0]) <= 0.5 * pose.opening_width_m) & (np.abs(local[..., 1]) <= 0.5 * config.finger_width_m)
+              & (local[..., 2] >= -config.finger_length_m) & (local[..., 2] <= config.fingertip_margin_m))
+    return np.flatnonzero(inside.any(axis=1)).astype(np.int64)
 
 
-def grasped_material_point(points_world: np.ndarray, faces: np.ndarray, uv_m: np.ndarray, held: np.ndarray,
+def grasped_material_point(points_world: np.ndarray, faces: np.ndarray, uv_m: np.ndarray,
                            fingertip_world: np.ndarray) -> tuple[np.ndarray, float]:
-    """The held material point: the cloth surface point nearest the fingertip centre.
+    """The held material point: the point of the held triangles nearest the fingertip centre.
 
-    Only triangles with at least one held node count, so the point is on the held part.
-    points_world : (V, 3) float metres at closing; faces : (F, 3) int; uv_m : (V, 2)
-    float metres, material coordinates; held : (K,) int node ids, K >= 1;
+    points_world : (V, 3) float metres, cloth nodes at closing
+    faces : (K, 3) int, the held triangles (``jaw_faces``), K >= 1
+    uv_m : (V, 2) float metres, material coordinates of the nodes
     fingertip_world : (3,) float metres
     returns (uv (2,) float64 metres, distance from the fingertip centre in metres)
     """
-    faces = np.asarray(faces, dtype=np.int64)
-    touching = np.isin(faces, np.asarray(held, dtype=np.int64)).any(axis=1)
-    if not touching.any():
-        raise ValueError("grasped_material_point: no face touches the held nodes")
-    f = faces[touching]
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        raise ValueError("grasped_material_point: expected at least one held triangle, got none")
     p = np.asarray(points_world, dtype=np.float64)
-    w = closest_point_barycentric(fingertip_world[None], p[f[:, 0]], p[f[:, 1]], p[f[:, 2]])  # (F', 3)
+    w = closest_point_barycentric(fingertip_world[None], p[f[:, 0]], p[f[:, 1]], p[f[:, 2]])  # (K, 3)
     closest = np.einsum("fk,fkd->fd", w, p[f])
     d = np.linalg.norm(closest - fingertip_world, axis=1)
     k = int(np.argmin(d))
@@ -236,7 +258,9 @@ def execute_grasp(scene, plan: GraspPlan, config: ExecutionConfig | None = None,
     physics.advance(travel / config.approach_speed_m_s)
 
     points = physics.cloth_vertices()
-    held = jaw_nodes(points, fingertip, pose, config)
+    faces = np.asarray(scene.faces, dtype=np.int64)
+    held_faces = faces[jaw_faces(points, faces, fingertip, pose, config)]
+    held = np.unique(held_faces)
     if held.size == 0:
         log.info("missed: no cloth node between the fingers at %s", np.round(fingertip, 3).tolist())
         if on_phase is not None:
@@ -245,7 +269,7 @@ def execute_grasp(scene, plan: GraspPlan, config: ExecutionConfig | None = None,
                                grasp_offset_m=math.inf, lifted_clear=False,
                                lowest_clearance_m=float(scene.clearance_above_support().min()),
                                failure="missed: no cloth between the fingers")
-    uv, offset = grasped_material_point(points, scene.faces, scene.uv_m, held, fingertip)
+    uv, offset = grasped_material_point(points, held_faces, scene.uv_m, fingertip)
     gripper.close_on(held)
     if on_phase is not None:
         on_phase("closed")

@@ -13,7 +13,8 @@ What a seed draws (``laundry_spec``):
   from a few centimetres), ``crumpled`` (dropped from 10-25 cm in a random tilted pose,
   so it lands creased and partly folded), ``folded`` (a random straight fold: the part
   of the cloth beyond a random line is turned over it before the drop), or ``held``
-  (hanging from a holder that pins one true corner, its lowest point above the table);
+  (hanging from a holder that pins one true corner, its lowest point above the table;
+  the holder is a visible box around that corner, which it hides as a hand would);
 - table: top 0.70-0.78 m above the floor, 1.2 m x 0.8 m, neutral grey;
 - camera: 1.0-1.3 m from the cloth, 50-70 degrees above the horizontal, azimuth within
   20 degrees of the table's front (-y), aim jittered by a few centimetres; Kinect-like
@@ -22,7 +23,7 @@ What a seed draws (``laundry_spec``):
 Ground truth (material coordinates ``uv_m`` of ``sim.cloth_mesh``, metres on the flat
 cloth): the true corners (a towel's four corners; a T-shirt's hem corners and the two
 corners of each sleeve end, taken from the ``TShirtShape`` construction, not from mesh
-indices) and the material outline (the closed boundary polygon of the mesh).
+indices) and the material outline (the mesh's boundary edges).
 
 World frame: z up, floor top at z = 0, the table centred on the origin. Camera frame:
 OpenCV optical; ``T_world_cam`` (4, 4) maps camera points to the world.
@@ -59,6 +60,8 @@ TABLE_HALF_XY_M = (0.60, 0.40)
 TABLE_THICKNESS_M = 0.04
 #: The holder of a ``held`` cloth pins the nodes within this radius of its corner: a finger pad.
 HOLDER_RADIUS_M = 0.02
+#: Half extents of the holder's visible body (a closed gripper's fingers around the corner), metres.
+HOLDER_HALF_EXTENTS_M = (0.025, 0.025, 0.04)
 
 
 def _check_seed(seed) -> int:
@@ -102,42 +105,27 @@ def tshirt_corners_uv(shape: TShirtShape) -> tuple[np.ndarray, tuple]:
     return key[list(rows)].astype(np.float64), names
 
 
-def material_outline(mesh: ClothMesh) -> np.ndarray:
-    """The cloth's outer boundary as an ordered loop of vertex ids.
+def boundary_edges(mesh: ClothMesh) -> np.ndarray:
+    """Edges of the cloth's outline: those used by one face only.
 
-    Boundary edges (used by one face) are chained in the faces' winding; the longest
-    loop is the outer outline (the meshes of ``sim.cloth_mesh`` have one).
-
-    returns (P,) int64 vertex ids, the closing edge implied
+    returns (E, 2) int64 vertex ids, each edge once, unordered (a T-shirt's outline may
+    touch itself at a vertex, so no single loop is assumed)
     """
     f = mesh.faces
-    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    key = np.sort(directed, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    half = directed[counts[inverse.ravel()] == 1]
-    nxt = {int(a): int(b) for a, b in half}
-    loops, seen = [], set()
-    for start in nxt:
-        if start in seen:
-            continue
-        loop, v = [], start
-        while v not in seen and v in nxt:
-            seen.add(v)
-            loop.append(v)
-            v = nxt[v]
-        loops.append(loop)
-    return np.asarray(max(loops, key=len), dtype=np.int64)
+    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    unique, counts = np.unique(edges, axis=0, return_counts=True)
+    return unique[counts == 1].astype(np.int64)
 
 
-def distance_to_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
-    """Distance of 2D points to the outline of a closed polygon.
+def distance_to_segments(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """Distance of 2D points to the nearest of a set of segments (an outline).
 
-    points : (N, 2) float, metres; polygon : (P, 2) float, closing edge implied
-    returns (N,) float64 metres (0 on the outline, whether the point is inside or not)
+    points : (N, 2) float, metres; segments : (E, 2, 2) float, metres, (start, end) each
+    returns (N,) float64 metres
     """
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
-    a = np.asarray(polygon, dtype=np.float64)
-    ab = np.roll(a, -1, axis=0) - a
+    seg = np.asarray(segments, dtype=np.float64).reshape(-1, 2, 2)
+    a, ab = seg[:, 0], seg[:, 1] - seg[:, 0]
     ap = pts[:, None, :] - a[None]
     t = np.clip(np.sum(ap * ab[None], axis=2) / np.maximum(np.sum(ab * ab, axis=1), 1e-300)[None], 0.0, 1.0)
     return np.min(np.linalg.norm(ap - t[..., None] * ab[None], axis=2), axis=1)
@@ -166,7 +154,7 @@ class LaundrySpec:
     texture_rgb : (Ht, Wt, 3) uint8 spanning the cloth's bounding box
     material : ClothMaterial
     corners_uv : (C, 2) float64 metres, the true corners; corner_names : C names
-    outline_ids : (P,) int64 vertex ids of the material outline, in order
+    outline_edges : (E, 2) int64 vertex ids of the edges of the material outline
     state : one of ``INITIAL_STATES``
     cloth_vertices_world : (V, 3) float64 metres, where the cloth starts before settling
     holder_vertex : cloth vertex pinned by the holder (``held`` only), else None
@@ -184,7 +172,7 @@ class LaundrySpec:
     material: ClothMaterial
     corners_uv: np.ndarray
     corner_names: tuple
-    outline_ids: np.ndarray
+    outline_edges: np.ndarray
     state: str
     cloth_vertices_world: np.ndarray
     holder_vertex: int | None
@@ -199,8 +187,8 @@ class LaundrySpec:
 
     @property
     def outline_uv(self) -> np.ndarray:
-        """(P, 2) float64 metres: the material outline as a closed polygon."""
-        return self.cloth.uv_m[self.outline_ids]
+        """(E, 2, 2) float64 metres: the material outline as segments (start, end)."""
+        return self.cloth.uv_m[self.outline_edges]
 
     @property
     def table_half_xy(self) -> tuple[float, float]:
@@ -356,7 +344,7 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
     T_world_cam = _camera_pose(rng, target)
     return LaundrySpec(
         seed=seed, cloth_kind=kind, cloth=mesh, printed=printed, texture_rgb=texture, material=material,
-        corners_uv=corners_uv, corner_names=names, outline_ids=material_outline(mesh), state=state,
+        corners_uv=corners_uv, corner_names=names, outline_edges=boundary_edges(mesh), state=state,
         cloth_vertices_world=verts, holder_vertex=holder_vertex, holder_position=holder_position,
         table_top_z=float(table_top), boxes=boxes, camera=camera, T_world_cam=T_world_cam, settle_s=settle_s,
     )
@@ -393,7 +381,9 @@ class LaundryScene:
             self.cloth_id = self.physics.add_cloth(spec.cloth, spec.cloth_vertices_world, spec.material)
             self.holder: Gripper | None = None
             if spec.holder_vertex is not None:
-                self.holder = self.physics.add_gripper(spec.holder_position)
+                # Visible, so that it hides the corner it holds as a hand or gripper would.
+                self.holder = self.physics.add_gripper(spec.holder_position, visual_half_extents_m=HOLDER_HALF_EXTENTS_M,
+                                                       rgba=(0.25, 0.25, 0.28, 1.0))
                 self.holder.close_on(self.physics.nodes_near(spec.holder_position, HOLDER_RADIUS_M))
             self.virtual_camera = VirtualCamera(self.camera, self.T_world_cam, lighting=spec.lighting)
             self.physics.advance(spec.settle_s)

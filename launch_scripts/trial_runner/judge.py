@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.laundry import distance_to_polygon, nearest_corner
+from sim.laundry import distance_to_segments, nearest_corner
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +53,8 @@ def judge(mode: str, grasped_uv, lifted_clear: bool, corners_uv: np.ndarray, out
         lifted clear; its corner distance is judged too, as ``corner_success``)
     grasped_uv : (2,) float metres, material point held; None when nothing was held
     lifted_clear : bool, no node of the cloth near the surface under it after the lift
-    corners_uv : (C, 2) float metres, C >= 1; outline_uv : (P, 2) float metres, closed polygon
+    corners_uv : (C, 2) float metres, C >= 1; outline_uv : (E, 2, 2) float metres, the
+        outline's segments (``LaundrySpec.outline_uv``)
     """
     if mode not in MODES:
         raise ValueError(f"Expected mode in {MODES}, got {mode!r}")
@@ -61,7 +62,7 @@ def judge(mode: str, grasped_uv, lifted_clear: bool, corners_uv: np.ndarray, out
         return Judgement(False, False, math.inf, -1, math.inf, "missed: no cloth between the fingers")
     uv = np.asarray(grasped_uv, dtype=np.float64).reshape(2)
     k, corner_error = nearest_corner(uv, corners_uv)
-    boundary_error = float(distance_to_polygon(uv[None], outline_uv)[0])
+    boundary_error = float(distance_to_segments(uv[None], outline_uv)[0])
     at_corner = corner_error <= tolerance_m
     at_boundary = boundary_error <= tolerance_m
     corner_success = at_corner and lifted_clear

@@ -19,21 +19,23 @@ from ipc.messages import RGBDFrame
 log = logging.getLogger(__name__)
 
 
-def mask_from_reference(frame: RGBDFrame, reference: RGBDFrame, colour_tol: float = 30.0,
+def mask_from_reference(frame: RGBDFrame, reference: RGBDFrame, colour_tol: float = 12.0,
                         depth_tol_m: float = 0.02, min_area_px: int = 200) -> np.ndarray:
     """(H, W) bool mask of the largest region that differs from the empty reference.
 
     frame, reference : RGBDFrame of the same camera, with and without the cloth
     colour_tol : Euclidean RGB distance (8-bit levels) of a differing pixel, after a
-        5x5 Gaussian blur that averages the sensor's colour noise
+        3x3 Gaussian blur; well above the sensor's colour noise (sigma 2 levels per
+        channel), well below the contrast of a pale print on a grey table (a threshold of
+        30 lost whole strips of such prints)
     depth_tol_m : a pixel nearer than the reference by more than this differs
     min_area_px : regions smaller than this are noise; the result is empty if none is larger
     Holes inside the region (dropouts, a print in the table's colour) are filled.
     """
     if frame.rgb.shape != reference.rgb.shape:
         raise ValueError(f"mask_from_reference: frame {frame.rgb.shape} and reference {reference.rgb.shape} differ in size")
-    a = cv2.GaussianBlur(frame.rgb, (5, 5), 0).astype(np.float32)
-    b = cv2.GaussianBlur(reference.rgb, (5, 5), 0).astype(np.float32)
+    a = cv2.GaussianBlur(frame.rgb, (3, 3), 0).astype(np.float32)
+    b = cv2.GaussianBlur(reference.rgb, (3, 3), 0).astype(np.float32)
     differs = np.linalg.norm(a - b, axis=2) > colour_tol
     d, r = frame.depth_m, reference.depth_m
     nearer = (d > 0) & (r > 0) & (d < r - depth_tol_m)

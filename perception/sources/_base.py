@@ -19,8 +19,6 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 
-import numpy as np
-
 from ipc.messages import RGBDFrame
 
 log = logging.getLogger(__name__)
@@ -159,7 +157,7 @@ def publish_frames(
     publish : called with each RGBDFrame, e.g. ``ipc.transport.Publisher.publish``
     pacing : see Pacing
     loop : start a new pass when the source ends (not for devices, which never end);
-        ``seq`` and ``timestamp_s`` continue from the previous pass (one median frame
+        ``seq`` and ``timestamp_s`` continue from the previous pass (one mean frame
         period on), so that subscribers see a stream that only moves forward
     max_frames : stop after this many frames (None: no limit)
     stop : set it (from another thread or a signal handler) to stop within one wait
@@ -177,7 +175,7 @@ def publish_frames(
     published = 0
     resume = None  # (seq, timestamp_s) the next pass's first frame is renumbered to
     while True:
-        seq_offset, time_offset, stamps, last = 0, 0.0, [], None
+        seq_offset, time_offset, first, last, count = 0, 0.0, None, None, 0
         for i, frame in enumerate(source.frames()):
             if stop.is_set():
                 return published
@@ -192,13 +190,15 @@ def publish_frames(
             published += 1
             if max_frames is not None and published >= max_frames:
                 return published
+            if first is None:
+                first = frame
             last = frame
-            stamps.append(frame.timestamp_s)
+            count += 1
         if not loop or stop.is_set():
             return published
         if last is None:
             log.warning("%s: a pass yielded no frame; not looping", source.name)
             return published
-        period = float(np.median(np.diff(stamps))) if len(stamps) > 1 else NOMINAL_PERIOD_S
-        log.info("%s: end of pass after %d frames; starting over", source.name, len(stamps))
+        period = (last.timestamp_s - first.timestamp_s) / (count - 1) if count > 1 else NOMINAL_PERIOD_S
+        log.info("%s: end of pass after %d frames; starting over", source.name, count)
         resume = (last.seq + 1, last.timestamp_s + period)

@@ -85,6 +85,10 @@ class KinectSource(FrameSource):
     Frames: seq counts captures from 0, timestamp_s is the colour image's device time.
     """
 
+    COLOUR_RESOLUTIONS = tuple(COLOUR_RESOLUTIONS)
+    DEPTH_MODES = tuple(DEPTH_MODES)
+    FRAME_RATES = tuple(FRAME_RATES)
+
     def __init__(self, colour_resolution: str = "720p", depth_mode: str = "nfov_unbinned", fps: int = 30,
                  device_id: int = 0, timeout_s: float = 5.0):
         for name, value, table in (("colour_resolution", colour_resolution, COLOUR_RESOLUTIONS),

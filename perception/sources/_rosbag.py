@@ -137,7 +137,7 @@ class RosbagSource(FrameSource):
             raise SourceError(f"rosbag {self.path}: no message on the camera info topic {info_topic!r}")
         unsupported = depth_encodings - set(DEPTH_ENCODINGS)
         if unsupported:
-            raise SourceError(f"rosbag {self.path}: depth encoding {sorted(unsupported)[0]!r} is not supported; "
+            raise SourceError(f"rosbag {self.path}: depth encoding {min(unsupported)!r} is not supported; "
                               f"expected one of {DEPTH_ENCODINGS}")
         self.depth_scale = MILLIMETRES_PER_METRE if depth_encodings and depth_encodings <= {"16UC1", "mono16"} else None
         pairs = associate(np.array(stamps["rgb"]), np.array(stamps["depth"]))

@@ -5,10 +5,10 @@ import pytest
 
 from perception.sources import RosbagSource, SourceError
 
-rosbags = pytest.importorskip("rosbags")
-from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
-from rosbags.rosbag2 import Writer as Writer2  # noqa: E402
-from rosbags.typesys import Stores, get_typestore  # noqa: E402
+pytest.importorskip("rosbags.highlevel")
+from rosbags.rosbag1 import Writer as Writer1
+from rosbags.rosbag2 import Writer as Writer2
+from rosbags.typesys import Stores, get_typestore
 
 W, H = 8, 6
 K = np.array([[7.5, 0, 3.5], [0, 7.25, 2.5], [0, 0, 1]])
@@ -30,7 +30,7 @@ def depth_m(k):
 def image(store, stamp_s, data, encoding, step, ros1):
     Time, Header, Image = (store.types[n] for n in ("builtin_interfaces/msg/Time", "std_msgs/msg/Header", "sensor_msgs/msg/Image"))
     sec = int(stamp_s)
-    stamp = Time(sec=sec, nanosec=int(round((stamp_s - sec) * 1e9)))
+    stamp = Time(sec=sec, nanosec=round((stamp_s - sec) * 1e9))
     header = Header(seq=0, stamp=stamp, frame_id="cam") if ros1 else Header(stamp=stamp, frame_id="cam")
     buf = np.zeros(step * H, np.uint8)
     rows = np.frombuffer(np.ascontiguousarray(data).tobytes(), np.uint8).reshape(H, -1)
@@ -43,8 +43,8 @@ def camera_info(store, ros1):
                                                           "sensor_msgs/msg/RegionOfInterest", "sensor_msgs/msg/CameraInfo"))
     stamp = Time(sec=0, nanosec=0)
     header = Header(seq=0, stamp=stamp, frame_id="cam_optical") if ros1 else Header(stamp=stamp, frame_id="cam_optical")
-    arrays = dict(D=D, K=K.ravel(), R=np.eye(3).ravel(), P=np.zeros(12)) if ros1 else \
-        dict(d=D, k=K.ravel(), r=np.eye(3).ravel(), p=np.zeros(12))
+    names = ("D", "K", "R", "P") if ros1 else ("d", "k", "r", "p")
+    arrays = dict(zip(names, (D, K.ravel(), np.eye(3).ravel(), np.zeros(12))))
     return Info(header=header, height=H, width=W, distortion_model="plumb_bob", binning_x=0, binning_y=0,
                 roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False), **arrays)
 

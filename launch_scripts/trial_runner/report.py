@@ -1,0 +1,125 @@
+"""The results of many trials: REPORT.json and a markdown summary.
+
+REPORT.json (DESIGN.md, "Trial runner"): ``success_rate`` and ``trials`` (one record
+of ``trial.run_trial`` each, with at least ``seed`` and ``success``), plus the command,
+the settings, a Wilson 95 % interval and breakdowns by initial state and cloth.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import re
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from launch_scripts.trial_runner.judge import TOLERANCE_M, wilson_interval
+
+log = logging.getLogger(__name__)
+
+
+def _rate(records: list[dict], key: str = "success") -> dict:
+    n = len(records)
+    k = sum(bool(r.get(key)) for r in records)
+    low, high = wilson_interval(k, n)
+    return {"n": n, "successes": k, "rate": (k / n) if n else None, "wilson_95": [low, high]}
+
+
+def failure_kind(reason: str) -> str:
+    """A failure reason without its numbers, to count alike failures together."""
+    if reason.startswith("error:"):
+        return "error: " + reason.split(": ", 2)[1]  # the exception type
+    return re.sub(r"-?\d+(\.\d+)?", "#", reason)
+
+
+def summarise(records: list[dict]) -> dict:
+    """Success rates (with Wilson 95 % intervals), breakdowns and medians of a run.
+
+    records : trial records (``run_trial``); returns a JSON-ready dict
+    """
+    ran = [r for r in records if not str(r.get("failure", "")).startswith("error:")]
+
+    def median(values) -> float | None:
+        values = [v for v in values if v is not None]
+        return round(float(np.median(values)), 3) if values else None
+
+    by = {}
+    for key in ("state", "cloth"):
+        groups: dict[str, list] = {}
+        for r in records:
+            groups.setdefault(str(r.get("scene", {}).get(key, "?")), []).append(r)
+        by[key] = {name: _rate(group) for name, group in sorted(groups.items())}
+    timing = [r.get("timing", {}) for r in records]
+    return {
+        "success": _rate(records),
+        "corner_success": _rate(records, "corner_success"),
+        "trials_that_could_not_run": len(records) - len(ran),
+        "by_state": by["state"],
+        "by_cloth": by["cloth"],
+        "failures": dict(Counter(failure_kind(r.get("failure", "")) for r in records if not r.get("success")).most_common()),
+        "median_corner_error_m": median(r.get("corner_error_m") for r in ran),
+        "median_tracking_error_mm": median(r.get("tracking_error_mm", {}).get("mean") for r in ran),
+        "median_tracking_ms": median(t.get("tracking_ms") for t in timing),
+        "median_planning_ms": median(t.get("planning_ms") for t in timing),
+        "median_total_s": median(t.get("total_s") for t in timing),
+    }
+
+
+def report(records: list[dict], command: str, settings: dict) -> dict:
+    """REPORT.json's content: records sorted by seed, their summary, the command and settings."""
+    records = sorted(records, key=lambda r: r["seed"])
+    summary = summarise(records)
+    return {"command": command, "settings": settings, "cpu_count": os.cpu_count(),
+            "success_rate": summary["success"]["rate"], "wilson_95": summary["success"]["wilson_95"],
+            "summary": summary, "trials": records}
+
+
+def markdown(rep: dict) -> str:
+    """A markdown summary of a report: success rate with its 95 % Wilson interval, breakdowns, failures."""
+    s = rep["summary"]
+    mode = rep["settings"].get("mode", "?")
+
+    def pct(rate: dict) -> str:
+        if rate["n"] == 0:
+            return "no trials"
+        lo, hi = rate["wilson_95"]
+        return f"{rate['successes']}/{rate['n']} = {100 * rate['rate']:.1f} % (95 % Wilson interval {100 * lo:.1f}-{100 * hi:.1f} %)"
+
+    seeds = [r["seed"] for r in rep["trials"]]
+    parity = "even (development)" if all(x % 2 == 0 for x in seeds) else (
+        "odd (evaluation)" if all(x % 2 for x in seeds) else "mixed even and odd")
+    lines = [
+        f"# Laundry-grasping trials: {mode} mode",
+        "",
+        f"Command: `{rep['command']}` ({rep['cpu_count']} CPU cores); seeds {parity}.",
+        "",
+        f"- **success: {pct(s['success'])}**",
+        f"- corner grasps (within {100 * TOLERANCE_M:.0f} cm of a true corner, lifted clear): {pct(s['corner_success'])}",
+        f"- trials that could not run: {s['trials_that_could_not_run']}",
+        f"- median corner error {s['median_corner_error_m']} m, median tracking error at plan time "
+        f"{s['median_tracking_error_mm']} mm (mean over vertices)",
+        f"- median tracking {s['median_tracking_ms']} ms/frame, planning {s['median_planning_ms']} ms, "
+        f"trial {s['median_total_s']} s",
+        "",
+        "| initial state | success |",
+        "| --- | --- |",
+        *[f"| {name} | {pct(rate)} |" for name, rate in s["by_state"].items()],
+        "",
+        "| cloth | success |",
+        "| --- | --- |",
+        *[f"| {name} | {pct(rate)} |" for name, rate in s["by_cloth"].items()],
+        "",
+    ]
+    if s["failures"]:
+        lines += ["| failure | trials |", "| --- | --- |", *[f"| {k} | {n} |" for k, n in s["failures"].items()], ""]
+    return "\n".join(lines)
+
+
+def write_json(path: Path, content: dict) -> None:
+    """Write ``content`` as indented JSON, creating the folder."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(content, indent=1) + "\n")

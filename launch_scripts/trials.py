@@ -1,0 +1,199 @@
+"""Laundry-grasping trials in simulation, end to end through the ZeroMQ services.
+
+    python -m launch_scripts.trials --seeds S [S ...] --json REPORT.json
+        [--mode corner|boundary|highest] [--workers N] [--engine local|ray]
+        [--pictures DIR] [--markdown SUMMARY.md] [--frames N] [--log-dir DIR] [--quiet]
+
+Each seed is one trial (``launch_scripts.trial_runner.trial.run_trial``): a towel or
+T-shirt on a table (or held up by a corner), drawn from the seed; its frames go through
+a perception service process and a planner service process on free loopback ports;
+the best plan is executed in the simulation and judged by ground truth. A seed is an
+integer or a range START:STOP[:STEP] (Python's). Even seeds are for development, odd
+seeds are kept for evaluation.
+
+Trials run in a local process pool (``--workers``, default 1; each trial also runs two
+service processes) or on a local Ray instance (``--engine ray``, needs ``ray``). Outputs:
+REPORT.json (``success_rate``, ``wilson_95``, ``summary`` and the ``trials``, each with
+at least ``seed`` and ``success``), optionally a markdown summary and a picture per trial
+(the plan on the frame, the closed fingers, the lifted cloth), and the services' logs
+(``--log-dir``, default ``logs/`` beside REPORT.json). Exit status 0 when every trial ran
+(whether its grasp succeeded or not), 1 when a trial could not run, 2 for bad arguments
+(one line on stderr).
+"""
+
+from __future__ import annotations
+
+import argparse
+import concurrent.futures
+import logging
+import multiprocessing
+import shlex
+import sys
+import time
+from pathlib import Path
+
+from tqdm import tqdm
+
+from launch_scripts.trial_runner.judge import MODES
+from launch_scripts.trial_runner.report import markdown, report, write_json
+from launch_scripts.trial_runner.trial import TrialConfig, run_trial, trial_config_dict
+
+log = logging.getLogger("launch_scripts.trials")
+
+
+class _OneLineParser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line on stderr and exit status 2."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def _seeds(text: str) -> list[int]:
+    """An integer >= 0, or START:STOP[:STEP] as Python's range."""
+    try:
+        parts = [int(p) for p in text.split(":")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a seed (integer >= 0) or START:STOP[:STEP], got {text!r}") from None
+    if len(parts) == 1:
+        seeds = parts
+    elif len(parts) in (2, 3) and (len(parts) == 2 or parts[2] != 0):
+        seeds = list(range(*parts))
+    else:
+        raise argparse.ArgumentTypeError(f"expected START:STOP[:STEP] with a non-zero step, got {text!r}")
+    if not seeds or min(seeds) < 0:
+        raise argparse.ArgumentTypeError(f"expected seeds >= 0, got {text!r}")
+    return seeds
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = _OneLineParser(prog="python -m launch_scripts.trials", description=__doc__.split("\n\n")[0])
+    p.add_argument("--seeds", type=_seeds, nargs="+", required=True, metavar="S",
+                   help="seeds (integers, or START:STOP[:STEP]); even for development, odd for evaluation")
+    p.add_argument("--json", type=Path, required=True, metavar="REPORT.json", help="where to write the report")
+    p.add_argument("--mode", choices=MODES, default="corner", help="grasp kind to request (default corner)")
+    p.add_argument("--workers", type=_positive_int, default=1, help="trials run at once (default 1)")
+    p.add_argument("--engine", choices=("local", "ray"), default="local",
+                   help="local process pool (default) or a local Ray instance (needs ray)")
+    p.add_argument("--pictures", type=Path, metavar="DIR", help="write a picture of each trial there")
+    p.add_argument("--markdown", type=Path, metavar="SUMMARY.md", help="write a markdown summary there")
+    p.add_argument("--frames", type=_positive_int, default=TrialConfig().observe_frames,
+                   help=f"frames observed before planning, the first initialises (default {TrialConfig().observe_frames})")
+    p.add_argument("--log-dir", type=Path, metavar="DIR", help="services' logs (default: logs/ beside REPORT.json)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def _run_local(seeds: list[int], config: TrialConfig, workers: int, progress) -> list[dict]:
+    # spawn: each trial starts in a fresh interpreter (PyBullet and ZeroMQ state never
+    # cross a fork), and one process per trial returns its memory when it ends.
+    context = multiprocessing.get_context("spawn")
+    records = []
+    with concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=context, max_tasks_per_child=1) as pool:
+        futures = {pool.submit(run_trial, seed, config): seed for seed in seeds}
+        for future in concurrent.futures.as_completed(futures):
+            seed = futures[future]
+            try:
+                records.append(future.result())
+            except concurrent.futures.process.BrokenProcessPool as e:  # a worker died (killed, out of memory)
+                records.append({"seed": seed, "mode": config.mode, "success": False, "corner_success": False,
+                                "failure": f"error: BrokenProcessPool: {e}"})
+            progress(records[-1])
+    return records
+
+
+def _run_ray(seeds: list[int], config: TrialConfig, workers: int, progress) -> list[dict]:
+    try:
+        import ray
+    except ImportError as e:
+        raise RuntimeError(f"--engine ray needs the Python module 'ray' ({e}); install it with: pip install 'ray>=2.9'") from None
+    started = not ray.is_initialized()
+    if started:
+        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
+    try:
+        remote = ray.remote(num_cpus=1, max_retries=0)(run_trial)
+        pending = {remote.remote(seed, config): seed for seed in seeds}
+        records = []
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                seed = pending.pop(ref)
+                try:
+                    records.append(ray.get(ref))
+                except ray.exceptions.RayError as e:
+                    records.append({"seed": seed, "mode": config.mode, "success": False, "corner_success": False,
+                                    "failure": f"error: {type(e).__name__}: {' '.join(str(e).split())[:300]}"})
+                progress(records[-1])
+        return records
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    seeds = sorted({s for group in args.seeds for s in group})
+    if args.json.exists() and args.json.is_dir():
+        parser.error(f"--json {args.json} is a directory")
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    log_dir = args.log_dir if args.log_dir is not None else args.json.parent / "logs"
+    config = TrialConfig(mode=args.mode, observe_frames=args.frames, log_dir=str(log_dir),
+                         pictures_dir=None if args.pictures is None else str(args.pictures))
+    command = "python -m launch_scripts.trials " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
+
+    bar = tqdm(total=len(seeds), desc=f"{args.mode} trials", unit="trial", disable=args.quiet)
+    wins = [0]
+
+    def progress(record: dict) -> None:
+        wins[0] += bool(record.get("success"))
+        bar.update(1)
+        bar.set_postfix(success=f"{wins[0]}/{bar.n}")
+        if not record.get("success"):
+            bar.write(f"seed {record['seed']}: {record.get('failure') or 'failed'}")
+
+    start = time.perf_counter()
+    run = _run_ray if args.engine == "ray" else _run_local
+    try:
+        records = run(seeds, config, args.workers, progress)
+    except RuntimeError as e:
+        bar.close()
+        print(f"{parser.prog}: error: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        bar.close()
+        print("interrupted; no report written", file=sys.stderr)
+        return 130
+    bar.close()
+    settings = {**trial_config_dict(config), "engine": args.engine, "workers": args.workers,
+                "wall_s": round(time.perf_counter() - start, 1)}
+    rep = report(records, command, settings)
+    write_json(args.json, rep)
+    if args.markdown is not None:
+        args.markdown.parent.mkdir(parents=True, exist_ok=True)
+        args.markdown.write_text(markdown(rep))
+    s = rep["summary"]["success"]
+    lo, hi = s["wilson_95"]
+    print(f"{args.mode}: {s['successes']}/{s['n']} trials succeeded ({100 * (s['rate'] or 0):.1f} %, "
+          f"95 % Wilson interval {100 * lo:.1f}-{100 * hi:.1f} %) in {settings['wall_s']:.0f} s")
+    print(f"report: {args.json}")
+    if args.markdown is not None:
+        print(f"summary: {args.markdown}")
+    if args.pictures is not None:
+        print(f"pictures: {args.pictures}/trial_seed<S>.png")
+    print(f"service logs: {log_dir}")
+    could_not_run = rep["summary"]["trials_that_could_not_run"]
+    return 1 if could_not_run else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

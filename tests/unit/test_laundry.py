@@ -1,0 +1,148 @@
+"""Laundry trial scenes (sim.laundry): the seed's draw, ground truth from geometry, the running scene."""
+
+import numpy as np
+import pytest
+
+from sim.cloth_mesh import TShirtShape, rectangle_mesh, tshirt_mesh
+from sim.laundry import (
+    CLOTH_KINDS,
+    INITIAL_STATES,
+    boundary_edges,
+    distance_to_segments,
+    laundry_spec,
+    nearest_corner,
+    rectangle_corners_uv,
+    tshirt_corners_uv,
+)
+
+
+def interior_angles_deg(polygon):
+    """Interior angle at each vertex of a closed polygon, degrees, for either winding."""
+    a, b, c = np.roll(polygon, 1, axis=0), polygon, np.roll(polygon, -1, axis=0)
+    d1, d2 = b - a, c - b
+    turn = np.degrees(np.arctan2(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0], np.sum(d1 * d2, axis=1)))
+    area2 = np.sum(polygon[:, 0] * np.roll(polygon[:, 1], -1) - np.roll(polygon[:, 0], -1) * polygon[:, 1])
+    return 180.0 - turn * np.sign(area2)
+
+
+def convex_corners(uv_polygon, max_angle_deg=135.0):
+    """Points of a closed outline where it turns sharply and convexly (collinear points skipped)."""
+    angles = interior_angles_deg(uv_polygon)
+    return uv_polygon[angles < max_angle_deg]
+
+
+# ----------------------------------------------------------------------------- ground truth
+
+
+def test_rectangle_outline_and_corners_match_its_geometry():
+    mesh = rectangle_mesh(0.5, 0.4, spacing_m=0.03)
+    segments = mesh.uv_m[boundary_edges(mesh)]
+    assert np.sum(np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1)) == pytest.approx(2 * (0.5 + 0.4))
+    on_outline = distance_to_segments(mesh.uv_m, segments) < 1e-12
+    on_rectangle = np.isclose(mesh.uv_m, 0.0).any(axis=1) | np.isclose(mesh.uv_m, [0.5, 0.4]).any(axis=1)
+    np.testing.assert_array_equal(on_outline, on_rectangle)
+    corners, names = rectangle_corners_uv(0.5, 0.4)
+    assert names == ("top_left", "top_right", "bottom_right", "bottom_left")
+    assert sorted(map(tuple, np.round(convex_corners(corners), 9))) == sorted(map(tuple, corners))
+    assert np.min(np.linalg.norm(mesh.uv_m[None] - corners[:, None], axis=2), axis=1).max() < 1e-9
+
+
+@pytest.mark.parametrize("scale", [0.6, 0.72, 0.85])
+def test_tshirt_corners_are_its_sharp_outline_corners_except_the_neck(scale):
+    shape = TShirtShape().scaled(scale)
+    mesh = tshirt_mesh(shape, spacing_m=0.03)
+    corners, names = tshirt_corners_uv(shape)
+    assert len(names) == 6 and {"left_hem", "right_hem", "left_cuff_top", "right_cuff_bottom"} <= set(names)
+    # Every true corner is a vertex of the mesh, on its outline.
+    assert np.min(np.linalg.norm(mesh.uv_m[None] - corners[:, None], axis=2), axis=1).max() < 1e-9
+    assert distance_to_segments(corners, mesh.uv_m[boundary_edges(mesh)]).max() < 1e-9
+    # The shape's sharp convex corners are the six, plus the two ends of the neck opening.
+    polygon = shape.outline()
+    found = convex_corners(polygon - polygon.min(axis=0))
+    assert len(found) == 8
+    _, d = zip(*(nearest_corner(p, corners) for p in found))
+    neck = found[np.asarray(d) > 1e-9]
+    assert len(neck) == 2
+    assert np.allclose(neck[:, 1], 0.0)  # on the top edge, either side of the neck
+    assert np.allclose(np.abs(neck[:, 0] - found[:, 0].mean()), 0.5 * shape.neck_width_m)
+
+
+def test_distance_to_segments_and_nearest_corner_known_answers():
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    segments = np.stack([square, np.roll(square, -1, axis=0)], axis=1)
+    d = distance_to_segments(np.array([[0.5, 0.5], [0.5, 0.0], [2.0, 0.5], [-3.0, -4.0]]), segments)
+    np.testing.assert_allclose(d, [0.5, 0.0, 1.0, 5.0])
+    assert nearest_corner(np.array([0.9, 0.2]), square) == (1, pytest.approx(np.hypot(0.1, 0.2)))
+
+
+# ----------------------------------------------------------------------------- spec
+
+
+def test_spec_is_drawn_from_the_seed_only():
+    a, b = laundry_spec(6), laundry_spec(6)
+    assert a.describe() == b.describe()
+    np.testing.assert_array_equal(a.cloth_vertices_world, b.cloth_vertices_world)
+    np.testing.assert_array_equal(a.T_world_cam, b.T_world_cam)
+    np.testing.assert_array_equal(a.texture_rgb, b.texture_rgb)
+    assert laundry_spec(7).describe() != a.describe() or not np.array_equal(laundry_spec(7).T_world_cam, a.T_world_cam)
+
+
+def test_seeds_cover_every_kind_and_state():
+    specs = [laundry_spec(seed) for seed in range(0, 40, 2)]
+    assert {s.cloth_kind for s in specs} == set(CLOTH_KINDS)
+    assert {s.state for s in specs} == set(INITIAL_STATES)
+    assert {s.printed for s in specs} == {True, False}
+
+
+def test_camera_looks_down_at_the_cloth_from_one_to_one_and_a_third_metres():
+    for seed in range(0, 20, 2):
+        spec = laundry_spec(seed)
+        eye, forward = spec.T_world_cam[:3, 3], spec.T_world_cam[:3, 2]
+        target = spec.holder_position if spec.state == "held" else np.array([0.0, 0.0, spec.table_top_z])
+        assert forward[2] < -0.7  # 45 degrees or more below the horizontal
+        distance = np.linalg.norm(eye - target)
+        assert 0.9 < distance < 1.5
+
+
+def test_forced_state_and_kind_keep_the_rest_of_the_draw():
+    free, forced = laundry_spec(4), laundry_spec(4, state="held", cloth_kind="towel")
+    assert forced.state == "held" and forced.cloth_kind == "towel"
+    assert forced.holder_vertex is not None
+    held_uv = forced.cloth.uv_m[forced.holder_vertex]
+    assert min(np.linalg.norm(forced.corners_uv - held_uv, axis=1)) < 1e-9  # held by a true corner
+    assert forced.table_top_z == free.table_top_z
+
+
+@pytest.mark.parametrize("kw, match", [
+    (dict(seed=-1), "non-negative integer seed, got -1"),
+    (dict(seed=1.5), "non-negative integer seed, got 1.5"),
+    (dict(seed=0, state="rolled"), "unknown initial state 'rolled'; expected one of flat, crumpled, folded, held"),
+    (dict(seed=0, cloth_kind="sock"), "unknown cloth kind 'sock'; expected one of towel, tshirt"),
+])
+def test_bad_spec_arguments(kw, match):
+    with pytest.raises(ValueError, match=match):
+        laundry_spec(**kw)
+
+
+# ----------------------------------------------------------------------------- running scene
+
+
+@pytest.mark.slow
+def test_flat_towel_settles_on_the_table_and_renders_the_same_twice():
+    from sim.laundry import LaundryScene
+
+    pytest.importorskip("pybullet")
+    spec = laundry_spec(2, state="flat", cloth_kind="towel")
+    with LaundryScene(spec) as first, LaundryScene(spec) as second:
+        clearance = first.clearance_above_support()
+        assert 0.0 < clearance.min() and clearance.max() < 0.02  # lying on the table
+        f1, f2 = first.render(), second.render()
+        assert f1.rgb.tobytes() == f2.rgb.tobytes() and f1.depth_m.tobytes() == f2.depth_m.tobytes()
+        empty = first.render_empty()
+        mask = first.cloth_mask()
+        assert mask.sum() > 5000
+        assert np.all(np.abs(empty.depth_m[mask] - f1.depth_m[mask])[(empty.depth_m[mask] > 0) & (f1.depth_m[mask] > 0)]
+                      < 0.03)  # the cloth is within noise of the empty table in depth
+        corners = first.corners_world()
+        assert corners.shape == (4, 3)
+        assert np.allclose(corners[:, 2], spec.table_top_z, atol=0.02)

@@ -1,0 +1,190 @@
+"""Judging trials by ground truth, Wilson intervals, the empty-table mask, reports, the runner's arguments."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from ipc.messages import CameraInfo, RGBDFrame
+from launch_scripts.trial_runner.judge import TOLERANCE_M, judge, wilson_interval
+from launch_scripts.trial_runner.report import failure_kind, markdown, report, summarise
+from launch_scripts.trial_runner.segment import mask_from_reference
+from sim.laundry import rectangle_corners_uv
+
+# A 0.5 x 0.4 m towel: corners at (0, 0), (0.5, 0), (0.5, 0.4), (0, 0.4); outline = its sides.
+CORNERS, _ = rectangle_corners_uv(0.5, 0.4)
+OUTLINE = np.stack([CORNERS, np.roll(CORNERS, -1, axis=0)], axis=1)
+
+
+# ----------------------------------------------------------------------------- judge
+
+
+@pytest.mark.parametrize("uv, corner_error", [
+    ((0.0, 0.0), 0.0),
+    ((0.02, 0.02), np.hypot(0.02, 0.02)),
+    ((0.5, 0.371), 0.029),
+    ((0.48, 0.38), np.hypot(0.02, 0.02)),
+])
+def test_corner_grasp_within_tolerance_and_lifted_succeeds(uv, corner_error):
+    verdict = judge("corner", uv, True, CORNERS, OUTLINE)
+    assert verdict.success and verdict.corner_success and verdict.reason == ""
+    assert verdict.corner_error_m == pytest.approx(corner_error)
+
+
+@pytest.mark.parametrize("uv", [(0.25, 0.2), (0.0, 0.2), (0.04, 0.0), (0.5 - 0.025, 0.4 - 0.025)])
+def test_corner_grasp_beyond_tolerance_fails_and_says_how_far(uv):
+    verdict = judge("corner", uv, True, CORNERS, OUTLINE)
+    assert not verdict.success and not verdict.corner_success
+    assert verdict.corner_error_m > TOLERANCE_M
+    assert verdict.reason == f"grasped {100 * verdict.corner_error_m:.1f} cm from the nearest corner"
+
+
+def test_a_corner_grasp_that_does_not_lift_clear_fails():
+    verdict = judge("corner", (0.0, 0.0), False, CORNERS, OUTLINE)
+    assert not verdict.success and not verdict.corner_success
+    assert verdict.reason == "not lifted clear"
+    both = judge("corner", (0.25, 0.2), False, CORNERS, OUTLINE)
+    assert both.reason == "grasped 32.0 cm from the nearest corner; not lifted clear"
+
+
+def test_boundary_mode_measures_the_distance_to_the_outline():
+    on_edge = judge("boundary", (0.25, 0.01), True, CORNERS, OUTLINE)
+    assert on_edge.success and on_edge.boundary_error_m == pytest.approx(0.01)
+    assert not on_edge.corner_success  # 25 cm from a corner
+    inside = judge("boundary", (0.25, 0.2), True, CORNERS, OUTLINE)
+    assert not inside.success and inside.boundary_error_m == pytest.approx(0.2)
+    assert inside.reason == "grasped 20.0 cm from the outline"
+
+
+def test_highest_mode_succeeds_when_lifted_and_reports_the_corner_distance():
+    verdict = judge("highest", (0.25, 0.2), True, CORNERS, OUTLINE)
+    assert verdict.success and not verdict.corner_success
+    assert verdict.corner_error_m == pytest.approx(np.hypot(0.25, 0.2))
+    assert not judge("highest", (0.25, 0.2), False, CORNERS, OUTLINE).success
+
+
+def test_nothing_held_is_a_miss_in_every_mode():
+    for mode in ("corner", "boundary", "highest"):
+        verdict = judge(mode, None, False, CORNERS, OUTLINE)
+        assert not verdict.success and verdict.nearest_corner == -1 and np.isinf(verdict.corner_error_m)
+        assert verdict.reason == "missed: no cloth between the fingers"
+
+
+def test_judge_rejects_an_unknown_mode():
+    with pytest.raises(ValueError, match="Expected mode in .*, got 'middle'"):
+        judge("middle", (0.0, 0.0), True, CORNERS, OUTLINE)
+
+
+# ----------------------------------------------------------------------------- Wilson
+
+
+def test_wilson_interval_known_values():
+    # Reference values from the closed form (Wilson 1927), z = 1.96.
+    assert wilson_interval(0, 10) == pytest.approx((0.0, 0.27753), abs=1e-5)
+    assert wilson_interval(10, 10) == pytest.approx((0.72247, 1.0), abs=1e-5)
+    assert wilson_interval(45, 50) == pytest.approx((0.78640, 0.95653), abs=1e-5)
+    assert wilson_interval(0, 0) == (0.0, 1.0)
+    low, high = wilson_interval(7, 20)
+    assert low < 7 / 20 < high
+
+
+def test_wilson_interval_rejects_impossible_counts():
+    with pytest.raises(ValueError, match="Expected 0 <= successes <= n, got successes=5, n=3"):
+        wilson_interval(5, 3)
+
+
+# ----------------------------------------------------------------------------- empty-table mask
+
+
+def _frames(cloth: bool, rng):
+    camera = CameraInfo.from_fov(80, 60, np.deg2rad(60))
+    rgb = np.full((60, 80, 3), 150, np.uint8)
+    depth = np.full((60, 80), 1.2, np.float32)
+    if cloth:
+        rgb[20:40, 30:60] = (175, 160, 140)  # a pale cloth on a grey table: 25 levels of contrast
+        rgb[25:28, 35:50] = 150  # a printed stripe in the table's colour, inside the cloth
+        depth[20:40, 30:60] -= 0.004  # a few millimetres thick: depth cannot tell
+    rgb = np.clip(rgb + rng.normal(0, 2, rgb.shape), 0, 255).astype(np.uint8)
+    return RGBDFrame(rgb=rgb, depth_m=depth, camera=camera)
+
+
+def test_mask_from_reference_finds_a_thin_pale_cloth_and_fills_its_print():
+    rng = np.random.default_rng(0)
+    mask = mask_from_reference(_frames(True, rng), _frames(False, rng))
+    truth = np.zeros((60, 80), bool)
+    truth[20:40, 30:60] = True
+    assert (mask & ~truth).sum() <= 60 and (truth & ~mask).sum() <= 10  # at most a one-pixel rim more
+
+
+def test_mask_from_reference_is_empty_without_a_cloth():
+    rng = np.random.default_rng(1)
+    assert not mask_from_reference(_frames(False, rng), _frames(False, rng)).any()
+
+
+# ----------------------------------------------------------------------------- report
+
+
+RECORDS = [
+    {"seed": 2, "success": True, "corner_success": True, "failure": "", "corner_error_m": 0.01,
+     "scene": {"state": "flat", "cloth": "towel"}, "timing": {"tracking_ms": 100.0, "planning_ms": 20.0, "total_s": 10.0}},
+    {"seed": 0, "success": False, "corner_success": False, "failure": "grasped 4.2 cm from the nearest corner",
+     "corner_error_m": 0.042, "scene": {"state": "held", "cloth": "tshirt"}, "timing": {"total_s": 12.0}},
+    {"seed": 4, "success": False, "corner_success": False, "failure": "error: TimeoutError: no estimate of frame 3",
+     "scene": {"state": "flat", "cloth": "towel"}, "timing": {"total_s": 60.0}},
+]
+
+
+def test_summary_counts_rates_breakdowns_and_failures():
+    s = summarise(RECORDS)
+    assert s["success"]["n"] == 3 and s["success"]["successes"] == 1
+    assert s["success"]["wilson_95"] == list(wilson_interval(1, 3))
+    assert s["trials_that_could_not_run"] == 1
+    assert s["by_state"]["flat"]["successes"] == 1 and s["by_state"]["flat"]["n"] == 2
+    assert s["failures"] == {"grasped # cm from the nearest corner": 1, "error: TimeoutError": 1}
+    assert s["median_corner_error_m"] == pytest.approx(0.026)
+
+
+def test_report_is_sorted_json_with_the_contract_fields_and_a_markdown_summary():
+    rep = report(RECORDS, "python -m launch_scripts.trials --seeds 0 2 4 --json r.json", {"mode": "corner"})
+    assert [t["seed"] for t in rep["trials"]] == [0, 2, 4]
+    assert rep["success_rate"] == pytest.approx(1 / 3)
+    assert all("seed" in t and "success" in t for t in rep["trials"])
+    json.dumps(rep)
+    text = markdown(rep)
+    assert "**success: 1/3 = 33.3 % (95 % Wilson interval 6.1-79.2 %)**" in text
+    assert "seeds even (development)" in text
+
+
+def test_failure_kind_drops_numbers_and_keeps_error_types():
+    assert failure_kind("grasped 12.5 cm from the nearest corner") == "grasped # cm from the nearest corner"
+    assert failure_kind("error: ChildError: planner exited with status 2: boom") == "error: ChildError"
+    assert failure_kind("") == ""
+
+
+# ----------------------------------------------------------------------------- command line
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--seeds", "x", "--json", "r.json"], "argument --seeds: expected a seed (integer >= 0) or START:STOP[:STEP], got 'x'"),
+    (["--seeds", "-2", "--json", "r.json"], "argument --seeds: expected seeds >= 0, got '-2'"),
+    (["--seeds", "0:10:0", "--json", "r.json"], "argument --seeds: expected START:STOP[:STEP] with a non-zero step"),
+    (["--seeds", "0", "--json", "r.json", "--workers", "0"], "argument --workers: expected a positive integer, got 0"),
+    (["--seeds", "0", "--json", "r.json", "--mode", "middle"], "argument --mode: invalid choice: 'middle'"),
+    (["--json", "r.json"], "the following arguments are required: --seeds"),
+])
+def test_trials_bad_arguments_exit_2_with_one_line(args, message):
+    done = subprocess.run([sys.executable, "-m", "launch_scripts.trials", *args], capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 2
+    assert done.stdout == ""
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and message in lines[0]
+
+
+def test_trials_seed_ranges():
+    from launch_scripts.trials import build_parser
+
+    args = build_parser().parse_args(["--seeds", "0:10:2", "7", "--json", "r.json"])
+    assert sorted({s for group in args.seeds for s in group}) == [0, 2, 4, 6, 7, 8]
