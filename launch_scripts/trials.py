@@ -27,6 +27,7 @@ import argparse
 import concurrent.futures
 import logging
 import multiprocessing
+import os
 import shlex
 import sys
 import time
@@ -93,12 +94,21 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _quiet_stdout() -> None:
+    """Pool worker initializer: trials have nothing to say on stdout, but PyBullet prints its
+    build time there from C; keep the runner's output to the progress bar and the summary."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, 1)
+    os.close(devnull)
+
+
 def _run_local(seeds: list[int], config: TrialConfig, workers: int, progress) -> list[dict]:
     # spawn: each trial starts in a fresh interpreter (PyBullet and ZeroMQ state never
     # cross a fork), and one process per trial returns its memory when it ends.
     context = multiprocessing.get_context("spawn")
     records = []
-    with concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=context, max_tasks_per_child=1) as pool:
+    with concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=context, max_tasks_per_child=1,
+                                                initializer=_quiet_stdout) as pool:
         futures = {pool.submit(run_trial, seed, config): seed for seed in seeds}
         for future in concurrent.futures.as_completed(futures):
             seed = futures[future]
