@@ -30,7 +30,13 @@ import time
 from collections import OrderedDict
 
 from grasping._planner import MODES, GraspPlanner, GraspPlannerConfig
-from ipc.messages import ErrorReply, GraspPlanReply, GraspRequest, MeshEstimate, RGBDFrame
+from ipc.messages import (
+    ErrorReply,
+    GraspPlanReply,
+    GraspRequest,
+    MeshEstimate,
+    RGBDFrame,
+)
 
 log = logging.getLogger(__name__)
 

@@ -103,10 +103,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 def config_from_args(args) -> GraspPlannerConfig:
     """GraspPlannerConfig of the parsed options; raises ValueError (one line) for bad values."""
-    kw = dict(edge_approach=args.edge_approach, pinch_inset_m=args.pinch_inset_m, min_score=args.min_score,
-              min_confidence=args.min_confidence, opening_width_m=args.opening_width_m,
-              outline_window_spacings=args.outline_window_spacings,
-              corner_max_angle_rad=math.radians(args.corner_max_angle_deg))
+    kw = {"edge_approach": args.edge_approach, "pinch_inset_m": args.pinch_inset_m, "min_score": args.min_score,
+          "min_confidence": args.min_confidence, "opening_width_m": args.opening_width_m,
+          "outline_window_spacings": args.outline_window_spacings,
+          "corner_max_angle_rad": math.radians(args.corner_max_angle_deg)}
     if args.T_world_cam is not None:
         kw["T_world_cam"] = np.asarray(args.T_world_cam, dtype=np.float64).reshape(4, 4)
     if args.up is not None:

@@ -35,13 +35,20 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from typing import Self
 
 import numpy as np
 
 from ipc.messages import CameraInfo, RGBDFrame
 from sim.camera import Lighting, VirtualCamera
 from sim.camera_model import look_at, transform_points
-from sim.cloth_mesh import ClothMesh, TShirtShape, boundary_vertices, rectangle_mesh, tshirt_mesh
+from sim.cloth_mesh import (
+    ClothMesh,
+    TShirtShape,
+    boundary_vertices,
+    rectangle_mesh,
+    tshirt_mesh,
+)
 from sim.noise import DepthNoiseModel, add_colour_noise, add_depth_noise
 from sim.physics import ClothMaterial, ClothPhysics, Gripper
 from sim.scenes import Box, kinect_camera
@@ -58,8 +65,9 @@ CLOTH_SPACING_M = 0.03
 #: Half extents of the table top (x, y), metres, and its thickness.
 TABLE_HALF_XY_M = (0.60, 0.40)
 TABLE_THICKNESS_M = 0.04
-#: The holder of a ``held`` cloth pins the nodes within this radius of its corner: a finger pad.
-HOLDER_RADIUS_M = 0.02
+#: The holder of a ``held`` cloth clamps the nodes within this radius of its corner (the
+#: corner node and its grid neighbours): pinned by one node, the cloth spins about it.
+HOLDER_RADIUS_M = 0.045
 #: Half extents of the holder's visible body (a closed gripper's fingers around the corner), metres.
 HOLDER_HALF_EXTENTS_M = (0.025, 0.025, 0.04)
 
@@ -257,7 +265,7 @@ def _texture(mesh: ClothMesh, rng: np.random.Generator, printed: bool, px_per_m:
         return plain_texture(random_plain_colour(rng))
     width, height = mesh.size_m
     area = width * height
-    return poster_texture(rng, int(round(width * px_per_m)), int(round(height * px_per_m)),
+    return poster_texture(rng, round(width * px_per_m), round(height * px_per_m),
                           n_shapes=max(20, int(120 * area / 0.27)), n_words=max(3, int(10 * area / 0.27)))
 
 
@@ -340,7 +348,8 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
         verts = np.array([0.0, 0.0, top]) + uv[:, :1] * side[None] - uv[:, 1:2] * np.array([[0.0, 0.0, 1.0]])
         holder_position = verts[holder_vertex].copy()
         target = np.array([0.0, 0.0, top - 0.5 * hang])
-        settle_s = 1.5
+        # PyBullet cloth has no air drag: a hanging cloth swings for seconds before it calms.
+        settle_s = 5.0
     T_world_cam = _camera_pose(rng, target)
     return LaundrySpec(
         seed=seed, cloth_kind=kind, cloth=mesh, printed=printed, texture_rgb=texture, material=material,
@@ -395,11 +404,11 @@ class LaundryScene:
         log.info("laundry scene %s", spec.describe())
 
     @classmethod
-    def from_seed(cls, seed: int, noise: bool = True, **spec_options) -> "LaundryScene":
+    def from_seed(cls, seed: int, noise: bool = True, **spec_options) -> LaundryScene:
         """``LaundryScene(laundry_spec(seed, **spec_options), noise)``."""
         return cls(laundry_spec(seed, **spec_options), noise=noise)
 
-    def __enter__(self) -> "LaundryScene":
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -10,7 +10,12 @@
 The command line is ``python -m launch_scripts.trials``.
 """
 
-from launch_scripts.trial_runner.judge import TOLERANCE_M, Judgement, judge, wilson_interval
+from launch_scripts.trial_runner.judge import (
+    TOLERANCE_M,
+    Judgement,
+    judge,
+    wilson_interval,
+)
 from launch_scripts.trial_runner.trial import TrialConfig, best_candidate, run_trial
 
 __all__ = ["TOLERANCE_M", "Judgement", "TrialConfig", "best_candidate", "judge", "run_trial", "wilson_interval"]

@@ -3,22 +3,21 @@
 Each child is ``python -m MODULE ARGS`` that prints the endpoints it bound as one JSON
 line on stdout once ready (``perception_service --print-endpoints``,
 ``planner_service --print-endpoint``). Its stderr goes to a log file. On Linux the
-kernel sends a child SIGTERM when the process that started it dies, so no child
-outlives a killed trial; ``Children.stop_all`` stops them on every normal exit path.
+kernel sends a child SIGTERM when the process that started it dies (``_child``), so no
+child outlives a killed trial; ``Children.stop_all`` stops them on every normal exit path.
 """
 
 from __future__ import annotations
 
-import ctypes
 import json
 import logging
 import os
 import select
-import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Self
 
 log = logging.getLogger(__name__)
 
@@ -27,16 +26,10 @@ log = logging.getLogger(__name__)
 STARTUP_TIMEOUT_S = 90.0
 #: Seconds a child gets to stop after SIGTERM before it is killed.
 STOP_TIMEOUT_S = 5.0
-_PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 class ChildError(RuntimeError):
     """A child did not start, or ended early; the message is one line with its last log line."""
-
-
-def _die_with_parent() -> None:
-    """Runs in the child before exec: the kernel sends it SIGTERM when its parent dies."""
-    ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
 
 
 def _last_line(path: Path) -> str:
@@ -67,11 +60,10 @@ class Children:
         self.log_dir.mkdir(parents=True, exist_ok=True)
         log_path = self.log_dir / f"{name}.log"
         self._logs[name] = log_path
-        command = [sys.executable, "-m", module, *args]
-        preexec = _die_with_parent if sys.platform.startswith("linux") else None
+        command = [sys.executable, "-m", "launch_scripts.trial_runner._child", str(os.getpid()), module, *args]
         with open(log_path, "w") as err:
             proc = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=err, stdin=subprocess.DEVNULL, text=True,
-                                    preexec_fn=preexec, env={**os.environ, "PYTHONUNBUFFERED": "1"})
+                                    env={**os.environ, "PYTHONUNBUFFERED": "1"})
         self.procs[name] = proc
         log.debug("started %s (pid %d): %s", name, proc.pid, " ".join(command))
         ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
@@ -107,7 +99,7 @@ class Children:
             if proc.stdout is not None:
                 proc.stdout.close()
 
-    def __enter__(self) -> "Children":
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc) -> None:

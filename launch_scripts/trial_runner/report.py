@@ -99,10 +99,10 @@ def markdown(rep: dict) -> str:
         f"- **success: {pct(s['success'])}**",
         f"- corner grasps (within {100 * TOLERANCE_M:.0f} cm of a true corner, lifted clear): {pct(s['corner_success'])}",
         f"- trials that could not run: {s['trials_that_could_not_run']}",
-        f"- median corner error {s['median_corner_error_m']} m, median tracking error at plan time "
-        f"{s['median_tracking_error_mm']} mm (mean over vertices)",
-        f"- median tracking {s['median_tracking_ms']} ms/frame, planning {s['median_planning_ms']} ms, "
-        f"trial {s['median_total_s']} s",
+        (f"- median corner error {s['median_corner_error_m']} m, median tracking error at plan time "
+         f"{s['median_tracking_error_mm']} mm (mean over vertices)"),
+        (f"- median tracking {s['median_tracking_ms']} ms/frame, planning {s['median_planning_ms']} ms, "
+         f"trial {s['median_total_s']} s"),
         "",
         "| initial state | success |",
         "| --- | --- |",

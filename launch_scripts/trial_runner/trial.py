@@ -28,15 +28,28 @@ import math
 import tempfile
 import time
 import traceback
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
-from ipc.messages import GraspPlan, GraspPlanReply, GraspRequest, InitialiseRequest, MeshEstimate, StatusReply
+from ipc.messages import (
+    GraspPlan,
+    GraspPlanReply,
+    GraspRequest,
+    InitialiseRequest,
+    MeshEstimate,
+    StatusReply,
+)
 from launch_scripts.trial_runner.judge import MODES, judge
-from launch_scripts.trial_runner.pictures import caption, draw_plan, draw_point, save_png, strip
+from launch_scripts.trial_runner.pictures import (
+    caption,
+    draw_plan,
+    draw_point,
+    save_png,
+    strip,
+)
 from launch_scripts.trial_runner.processes import ChildError, Children
 from launch_scripts.trial_runner.segment import mask_from_reference
 from sim.grasp_execution import ExecutionConfig, execute_grasp
@@ -216,7 +229,9 @@ def run_trial(seed: int, config: TrialConfig | None = None,
     the request's round trip, ``total_s``), ``picture`` (path or None).
     Never raises for a failed trial; a bad ``config`` raises ValueError.
     """
-    from ipc.transport import Publisher  # zmq and PyBullet are loaded by the trial, not on import
+    from ipc.transport import (
+        Publisher,  # zmq and PyBullet are loaded by the trial, not on import
+    )
     from sim.laundry import LaundryScene, laundry_spec
 
     config = config if config is not None else TrialConfig()
@@ -243,7 +258,7 @@ def run_trial(seed: int, config: TrialConfig | None = None,
         except (ChildError, TimeoutError, OSError, RuntimeError, ValueError) as e:
             log.warning("seed %d: %s: %s", seed, type(e).__name__, e)
             record["failure"] = f"error: {type(e).__name__}: {' '.join(str(e).split())}"
-        except Exception as e:  # an unexpected failure of one trial must not stop a run of many
+        except Exception as e:  # noqa: BLE001 -- an unexpected failure of one trial must not stop a run of many
             log.error("seed %d failed:\n%s", seed, traceback.format_exc())
             record["failure"] = f"error: {type(e).__name__}: {' '.join(str(e).split())}"
     record.setdefault("timing", {})["total_s"] = round(time.perf_counter() - start, 2)

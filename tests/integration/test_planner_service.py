@@ -72,9 +72,8 @@ def service():
 
 def test_requests_before_any_estimate_are_not_ready(service):
     _, endpoint = service
-    with RequestClient(endpoint, timeout_s=5.0, attempts=1) as client:
-        with pytest.raises(RemoteError) as e:
-            client.request(GraspRequest(request_id=3, kinds=("corner",)))
+    with RequestClient(endpoint, timeout_s=5.0, attempts=1) as client, pytest.raises(RemoteError) as e:
+        client.request(GraspRequest(request_id=3, kinds=("corner",)))
     assert e.value.code == "not_ready"
     assert e.value.reply.request_id == 3
     assert "no mesh estimate received yet" in e.value.reply.message
@@ -180,7 +179,7 @@ def test_a_stale_estimate_is_not_ready_but_a_request_may_bring_its_own():
     (["--min-score", "nan"], "argument --min-score: expected a finite number, got 'nan'"),
 ])
 def test_bad_command_lines_exit_2_with_one_line(args, message):
-    done = subprocess.run([sys.executable, "-m", "launch_scripts.planner_service", *args], capture_output=True,
+    done = subprocess.run([sys.executable, "-m", "launch_scripts.planner_service", *args], check=False, capture_output=True,
                           text=True, timeout=60)
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
@@ -190,7 +189,7 @@ def test_bad_command_lines_exit_2_with_one_line(args, message):
 def test_a_port_in_use_is_a_one_line_error():
     with Publisher(ANY, source="occupies a port") as occupant:
         done = subprocess.run([sys.executable, "-m", "launch_scripts.planner_service", "--bind", occupant.endpoint,
-                               "--estimates", occupant.endpoint], capture_output=True, text=True, timeout=60)
+                               "--estimates", occupant.endpoint], check=False, capture_output=True, text=True, timeout=60)
     assert done.returncode == 2
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and "cannot bind" in lines[0]

@@ -114,10 +114,10 @@ def test_forced_state_and_kind_keep_the_rest_of_the_draw():
 
 
 @pytest.mark.parametrize("kw, match", [
-    (dict(seed=-1), "non-negative integer seed, got -1"),
-    (dict(seed=1.5), "non-negative integer seed, got 1.5"),
-    (dict(seed=0, state="rolled"), "unknown initial state 'rolled'; expected one of flat, crumpled, folded, held"),
-    (dict(seed=0, cloth_kind="sock"), "unknown cloth kind 'sock'; expected one of towel, tshirt"),
+    ({"seed": -1}, "non-negative integer seed, got -1"),
+    ({"seed": 1.5}, "non-negative integer seed, got 1.5"),
+    ({"seed": 0, "state": "rolled"}, "unknown initial state 'rolled'; expected one of flat, crumpled, folded, held"),
+    ({"seed": 0, "cloth_kind": "sock"}, "unknown cloth kind 'sock'; expected one of towel, tshirt"),
 ])
 def test_bad_spec_arguments(kw, match):
     with pytest.raises(ValueError, match=match):

@@ -101,9 +101,9 @@ def test_grasped_point_is_the_nearest_point_of_the_held_triangles():
 
 
 @pytest.mark.parametrize("kw, match", [
-    (dict(finger_length_m=0.0), "finger_length_m: expected a positive number, got 0.0"),
-    (dict(lift_height_m=-1.0), "lift_height_m: expected a non-negative number, got -1.0"),
-    (dict(samples_per_edge=0), "samples_per_edge: expected a positive integer, got 0"),
+    ({"finger_length_m": 0.0}, "finger_length_m: expected a positive number, got 0.0"),
+    ({"lift_height_m": -1.0}, "lift_height_m: expected a non-negative number, got -1.0"),
+    ({"samples_per_edge": 0}, "samples_per_edge: expected a positive integer, got 0"),
 ])
 def test_execution_config_rejects_bad_values(kw, match):
     with pytest.raises(ValueError, match=match):
