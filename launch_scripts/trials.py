@@ -37,7 +37,12 @@ from tqdm import tqdm
 
 from launch_scripts.trial_runner.judge import MODES
 from launch_scripts.trial_runner.report import markdown, report, write_json
-from launch_scripts.trial_runner.trial import TrialConfig, run_trial, trial_config_dict
+from launch_scripts.trial_runner.trial import (
+    TrialConfig,
+    run_trial,
+    scene_record,
+    trial_config_dict,
+)
 
 log = logging.getLogger("launch_scripts.trials")
 
@@ -94,6 +99,12 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _lost(seed: int, config: TrialConfig, failure: str) -> dict:
+    """The record of a trial whose process died before it could report."""
+    return {"seed": seed, "mode": config.mode, "success": False, "corner_success": False, "failure": failure,
+            "scene": scene_record(seed, config.scene_options)}
+
+
 def _quiet_stdout() -> None:
     """Pool worker initializer: trials have nothing to say on stdout, but PyBullet prints its
     build time there from C; keep the runner's output to the progress bar and the summary."""
@@ -115,8 +126,7 @@ def _run_local(seeds: list[int], config: TrialConfig, workers: int, progress) ->
             try:
                 records.append(future.result())
             except concurrent.futures.process.BrokenProcessPool as e:  # a worker died (killed, out of memory)
-                records.append({"seed": seed, "mode": config.mode, "success": False, "corner_success": False,
-                                "failure": f"error: BrokenProcessPool: {e}"})
+                records.append(_lost(seed, config, f"error: BrokenProcessPool: {e}"))
             progress(records[-1])
     return records
 
@@ -140,8 +150,7 @@ def _run_ray(seeds: list[int], config: TrialConfig, workers: int, progress) -> l
                 try:
                     records.append(ray.get(ref))
                 except ray.exceptions.RayError as e:
-                    records.append({"seed": seed, "mode": config.mode, "success": False, "corner_success": False,
-                                    "failure": f"error: {type(e).__name__}: {' '.join(str(e).split())[:300]}"})
+                    records.append(_lost(seed, config, f"error: {type(e).__name__}: {' '.join(str(e).split())[:300]}"))
                 progress(records[-1])
         return records
     finally:

@@ -11,8 +11,8 @@ What a seed draws (``laundry_spec``):
   ``TShirtShape`` scaled by 0.60-0.85), printed (poster texture) or plain coloured;
 - initial state (``INITIAL_STATES``): ``flat`` (laid flat at a random yaw and dropped
   from a few centimetres), ``crumpled`` (dropped from 10-25 cm in a random tilted pose,
-  so it lands creased and partly folded), ``folded`` (a random straight fold: the part
-  of the cloth beyond a random line is turned over it before the drop), or ``held``
+  so it lands creased and partly folded), ``folded`` (a straight fold: the part of the
+  cloth beyond a random row or column of its vertices is turned over before the drop), or ``held``
   (hanging from a holder that pins one true corner, its lowest point above the table;
   the holder is a visible box around that corner, which it hides as a hand would);
 - table: top 0.70-0.78 m above the floor, 1.2 m x 0.8 m, neutral grey;
@@ -209,6 +209,22 @@ class LaundrySpec:
         return f"seed {self.seed}: {texture} {self.cloth_kind} {w:.2f}x{h:.2f} m, {self.state}"
 
 
+def _without_slivers(mesh: ClothMesh, min_area_m2: float = 1e-9) -> ClothMesh:
+    """The mesh without its zero-area faces.
+
+    ``tshirt_mesh`` can leave Delaunay slivers between collinear outline points, and
+    PyBullet's ``loadSoftBody`` never returns on some of them (e.g. seed 92's shirt).
+    Faces of no area hold no cloth, so dropping them changes nothing else.
+    """
+    uv, f = mesh.uv_m, mesh.faces
+    d1, d2 = uv[f[:, 1]] - uv[f[:, 0]], uv[f[:, 2]] - uv[f[:, 0]]
+    keep = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) >= min_area_m2
+    if keep.all():
+        return mesh
+    log.debug("%s: dropped %d zero-area faces", mesh.name, int(np.sum(~keep)))
+    return ClothMesh(uv, f[keep], mesh.landmarks, mesh.name)
+
+
 def _rotation(axis: np.ndarray, angle_rad: float) -> np.ndarray:
     """(3, 3) rotation about a unit axis (Rodrigues)."""
     a = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
@@ -225,29 +241,41 @@ def _flat_on_table(mesh: ClothMesh, yaw_rad: float, height_m: float) -> np.ndarr
 
 
 def _fold(mesh: ClothMesh, points: np.ndarray, rng: np.random.Generator, layer_m: float) -> np.ndarray:
-    """Turn the part of a flat, front-up cloth beyond a random straight line over onto the rest.
+    """Turn the part of a flat, front-up cloth beyond a straight line over onto the rest.
 
-    The line crosses the cloth with a random direction, placed so that 15-40 % of the
-    vertices lie beyond it (a corner or a side turned over). Those are mirrored about the
-    line in the cloth's plane and lifted by ``layer_m`` so the flap starts above the rest.
-    points : (V, 3) flat placement (z constant); returns (V, 3)
+    PyBullet takes the springs' rest lengths from the initial shape, and an edge that
+    crosses the fold line comes out shorter, down to nothing (a collapsed spring stalls
+    its solver). So the line runs through a row or column of the mesh's vertices (u or
+    v constant): on a towel's grid no edge crosses it and the fold keeps every length;
+    on a T-shirt's lattice a few outline edges change, and lines that change any edge
+    by more than -40 % / +40 % are rejected. Among the lines leaving 15-45 % of the
+    vertices beyond, one is drawn at random; the vertices beyond it are mirrored about
+    it in the cloth's plane and lifted by ``layer_m`` so the flap starts above the rest.
+    points : (V, 3) flat placement (z constant), ``mesh.layout_points`` of a rotation;
+    returns (V, 3)
     """
     uv = mesh.uv_m
-    angle = rng.uniform(0.0, 2.0 * np.pi)
-    n = np.array([np.cos(angle), np.sin(angle)])
-    s = uv @ n
-    cut = np.quantile(s, 1.0 - rng.uniform(0.15, 0.40))
-    beyond = s > cut
-    out = points.copy()
-    # The mirror in uv maps to a mirror in the world plane: find the world direction of n.
-    to_world = np.linalg.lstsq(np.column_stack([uv - uv.mean(axis=0), np.ones(len(uv))]), points, rcond=None)[0]
-    n_world = to_world[0] * n[0] + to_world[1] * n[1]
-    n_world[2] = 0.0
-    n_world /= np.linalg.norm(n_world)
-    excess = (s[beyond] - cut)[:, None]
-    out[beyond] = points[beyond] - 2.0 * excess * n_world[None]
-    out[beyond, 2] += layer_m
-    return out
+    candidates = []
+    for axis in (0, 1):
+        values, counts = np.unique(uv[:, axis], return_counts=True)
+        for value in values[counts >= 4]:  # a line through a whole row (column) of vertices
+            for side in (1.0, -1.0):
+                beyond = side * (uv[:, axis] - value) > 1e-9
+                if 0.15 <= beyond.mean() <= 0.45:
+                    candidates.append((axis, value, beyond))
+    edges, rest = mesh.edges(), mesh.rest_lengths()
+    # The flat placement is an affine image of uv (a rotation and a shift): map mirrored uv alike.
+    affine = np.linalg.lstsq(np.column_stack([uv, np.ones(len(uv))]), points, rcond=None)[0]
+    for k in rng.permutation(len(candidates)):
+        axis, value, beyond = candidates[k]
+        folded_uv = uv.copy()
+        folded_uv[beyond, axis] = 2.0 * value - uv[beyond, axis]
+        out = np.column_stack([folded_uv, np.ones(len(uv))]) @ affine
+        out[beyond, 2] += layer_m
+        stretch = np.linalg.norm(out[edges[:, 0]] - out[edges[:, 1]], axis=1) / rest
+        if stretch.min() > 0.6 and stretch.max() < 1.4:  # a little pucker at the fold, no collapsed spring
+            return out
+    raise ValueError(f"no fold line of {mesh.name} keeps its edges' lengths")
 
 
 def _camera_pose(rng: np.random.Generator, target: np.ndarray) -> np.ndarray:
@@ -299,7 +327,7 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
         material = ClothMaterial(mass_per_area_kg_m2=0.3)
     else:
         shape = TShirtShape().scaled(0.60 + 0.25 * size_draw[0])
-        mesh = tshirt_mesh(shape, spacing_m=CLOTH_SPACING_M)
+        mesh = _without_slivers(tshirt_mesh(shape, spacing_m=CLOTH_SPACING_M))
         corners_uv, names = tshirt_corners_uv(shape)
         material = ClothMaterial(mass_per_area_kg_m2=0.18)
     texture = _texture(mesh, rng, printed)

@@ -16,6 +16,12 @@ from launch_scripts.trial_runner.judge import (
     judge,
     wilson_interval,
 )
-from launch_scripts.trial_runner.trial import TrialConfig, best_candidate, run_trial
+from launch_scripts.trial_runner.trial import (
+    TrialConfig,
+    best_candidate,
+    lowest_when_held,
+    run_trial,
+)
 
-__all__ = ["TOLERANCE_M", "Judgement", "TrialConfig", "best_candidate", "judge", "run_trial", "wilson_interval"]
+__all__ = ["TOLERANCE_M", "Judgement", "TrialConfig", "best_candidate", "judge", "lowest_when_held", "run_trial",
+           "wilson_interval"]

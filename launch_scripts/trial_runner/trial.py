@@ -84,7 +84,7 @@ class TrialConfig:
     mode : grasp kind requested, "corner" (default), "boundary" or "highest"
     observe_frames : frames shown to the perception service before planning: the first
         initialises the tracker, the others are tracked (1/30 s apart in the simulation)
-    max_candidates : candidates asked of the planner (the best is executed)
+    max_candidates : candidates asked of the planner (``run_trial``'s ``choose_plan`` picks one)
     tracker_args, planner_args : extra command-line options of the two services
     noise : sensor noise on the frames
     pictures_dir : write ``trial_seed<S>.png`` there, or None for no pictures
@@ -98,7 +98,7 @@ class TrialConfig:
 
     mode: str = "corner"
     observe_frames: int = 5
-    max_candidates: int = 5
+    max_candidates: int = 10
     tracker_args: tuple = TRACKER_ARGS
     planner_args: tuple = PLANNER_ARGS
     noise: bool = True
@@ -120,8 +120,23 @@ class TrialConfig:
 
 
 def best_candidate(reply: GraspPlanReply, scene) -> GraspPlan:
-    """The default choice of plan to execute: the planner's best."""
+    """The planner's best candidate."""
     return reply.candidates[0]
+
+
+def lowest_when_held(reply: GraspPlanReply, scene) -> GraspPlan:
+    """The controller's choice (default): the planner's best, but the lowest candidate when
+    the robot holds the cloth up by a corner.
+
+    A cloth hanging from one point has a corner at its lowest point (the opposite corner
+    of a towel; a hem corner or sleeve end of a shirt), while the turns of its outline
+    near the hand are where the cloth narrows towards it, not corners; a robot that holds
+    the cloth knows it does. Heights are world z (``scene.T_world_cam``).
+    """
+    if getattr(scene, "holder", None) is None:
+        return reply.candidates[0]
+    R, t = scene.T_world_cam[:3, :3], scene.T_world_cam[:3, 3]
+    return min(reply.candidates, key=lambda plan: float((R @ plan.position + t)[2]))
 
 
 def _workspace_args(scene) -> list[str]:
@@ -194,7 +209,11 @@ class _Link:
         raise TimeoutError(f"no plan on estimate {last_seq} within {self.config.plan_timeout_s:.0f} s ({why})")
 
 
-def _scene_record(spec) -> dict:
+def scene_record(seed: int, scene_options: dict | None = None, spec=None) -> dict:
+    """What the seed drew, for a trial's record: cloth kind, size (m), printed, initial state."""
+    from sim.laundry import laundry_spec
+
+    spec = spec if spec is not None else laundry_spec(seed, **(scene_options or {}))
     w, h = spec.cloth.size_m
     return {"cloth": spec.cloth_kind, "size_m": [round(w, 3), round(h, 3)], "printed": spec.printed,
             "state": spec.state}
@@ -211,18 +230,19 @@ def _wide_view(scene):
 
 
 def run_trial(seed: int, config: TrialConfig | None = None,
-              choose_plan: Callable[[GraspPlanReply, object], GraspPlan] = best_candidate) -> dict:
+              choose_plan: Callable[[GraspPlanReply, object], GraspPlan] = lowest_when_held) -> dict:
     """Run one trial (see the module docstring) and return its record.
 
     seed : int >= 0; the scene, its noise and so the whole trial follow from it
     config : TrialConfig, defaults when None
-    choose_plan : (reply, scene) -> the GraspPlan to execute; default the best candidate
+    choose_plan : (reply, scene) -> the GraspPlan to execute; default ``lowest_when_held``
 
     The record (JSON-ready): ``seed``, ``mode``, ``success``, ``corner_success``,
     ``failure`` ("" on success, else one line; "error: ..." when the trial could not
     run), ``scene`` (cloth kind, size, printed, initial state), ``corner_error_m`` and
     ``nearest_corner`` (name), ``boundary_error_m``, ``grasped_uv`` [u, v] metres,
-    ``plan`` (the executed plan in the camera frame), ``n_candidates``,
+    ``plan`` (the executed plan in the camera frame; ``rank`` 0 for the planner's best,
+    None for a plan not among the candidates), ``n_candidates``,
     ``tracking_error_mm`` (mean and p95 of the estimate planned on, DESIGN metric),
     ``confidence``, ``lifted_clear``, ``lowest_clearance_m``, ``held_nodes``,
     ``timing`` (``init_ms`` and median ``tracking_ms`` from the tracker, ``planning_ms``
@@ -240,7 +260,7 @@ def run_trial(seed: int, config: TrialConfig | None = None,
     with contextlib.ExitStack() as stack:
         try:
             spec = laundry_spec(seed, **config.scene_options)
-            record["scene"] = _scene_record(spec)
+            record["scene"] = scene_record(seed, spec=spec)
             scene = stack.enter_context(LaundryScene(spec, noise=config.noise))
             log_dir = Path(config.log_dir) / f"seed{seed}" if config.log_dir else Path(
                 stack.enter_context(tempfile.TemporaryDirectory(prefix="clothkit_trial_")))
@@ -314,7 +334,8 @@ def _observe_plan_execute(scene, link: _Link, config: TrialConfig, choose_plan, 
     plan = choose_plan(reply, scene)
     record["plan"] = {"kind": plan.kind, "position_cam": [round(float(v), 4) for v in plan.position],
                       "approach_cam": [round(float(v), 4) for v in plan.approach], "score": round(plan.score, 4),
-                      "vertex_id": plan.vertex_id, "estimate_seq": planned_on}
+                      "vertex_id": plan.vertex_id, "estimate_seq": planned_on,
+                      "rank": next((i for i, c in enumerate(reply.candidates) if c is plan), None)}
     panels = []
     if config.pictures_dir is not None:
         panels.append(_plan_panel(scene, frames[last], reply, plan, estimates.get(planned_on), truth[last]))

@@ -178,11 +178,13 @@ def test_a_stale_estimate_is_not_ready_but_a_request_may_bring_its_own():
     (["--bind", "nowhere"], "argument --bind: expected a ZeroMQ endpoint"),
     (["--min-score", "nan"], "argument --min-score: expected a finite number, got 'nan'"),
 ])
-def test_bad_command_lines_exit_2_with_one_line(args, message):
-    done = subprocess.run([sys.executable, "-m", "launch_scripts.planner_service", *args], check=False, capture_output=True,
-                          text=True, timeout=60)
-    assert done.returncode == 2
-    lines = done.stderr.strip().splitlines()
+def test_bad_command_lines_exit_2_with_one_line(args, message, capsys):
+    from launch_scripts.planner_service import main
+
+    with pytest.raises(SystemExit) as e:
+        main(args)
+    assert e.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and message in lines[0]
 
 

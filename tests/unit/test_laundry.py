@@ -104,6 +104,26 @@ def test_camera_looks_down_at_the_cloth_from_one_to_one_and_a_third_metres():
         assert 0.9 < distance < 1.5
 
 
+@pytest.mark.parametrize("state", INITIAL_STATES)
+@pytest.mark.parametrize("kind", CLOTH_KINDS)
+def test_initial_shapes_keep_the_cloths_edge_lengths(state, kind):
+    # PyBullet takes the springs' rest lengths from the initial shape: it must be the
+    # flat cloth moved rigidly (or folded along a line that cuts no edge short).
+    for seed in range(0, 30, 2):
+        spec = laundry_spec(seed, state=state, cloth_kind=kind)
+        mesh, v = spec.cloth, spec.cloth_vertices_world
+        uv, f = mesh.uv_m, mesh.faces
+        d1, d2 = uv[f[:, 1]] - uv[f[:, 0]], uv[f[:, 2]] - uv[f[:, 0]]
+        assert np.min(np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0])) > 0, "a zero-area face"
+        edges = mesh.edges()
+        stretch = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1) / mesh.rest_lengths()
+        if state == "folded":
+            assert 0.6 < stretch.min() and stretch.max() < 1.4
+            assert np.ptp(v[:, 2]) > 0.01  # a flap lies above the rest
+        else:
+            np.testing.assert_allclose(stretch, 1.0, atol=1e-9)
+
+
 def test_forced_state_and_kind_keep_the_rest_of_the_draw():
     free, forced = laundry_spec(4), laundry_spec(4, state="held", cloth_kind="towel")
     assert forced.state == "held" and forced.cloth_kind == "towel"

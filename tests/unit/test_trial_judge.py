@@ -1,8 +1,6 @@
 """Judging trials by ground truth, Wilson intervals, the empty-table mask, reports, the runner's arguments."""
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
@@ -174,12 +172,15 @@ def test_failure_kind_drops_numbers_and_keeps_error_types():
     (["--seeds", "0", "--json", "r.json", "--mode", "middle"], "argument --mode: invalid choice: 'middle'"),
     (["--json", "r.json"], "the following arguments are required: --seeds"),
 ])
-def test_trials_bad_arguments_exit_2_with_one_line(args, message):
-    done = subprocess.run([sys.executable, "-m", "launch_scripts.trials", *args], check=False, capture_output=True, text=True,
-                          timeout=60)
-    assert done.returncode == 2
-    assert done.stdout == ""
-    lines = done.stderr.strip().splitlines()
+def test_trials_bad_arguments_exit_2_with_one_line(args, message, capsys):
+    from launch_scripts.trials import main
+
+    with pytest.raises(SystemExit) as e:
+        main(args)
+    assert e.value.code == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    lines = err.strip().splitlines()
     assert len(lines) == 1 and message in lines[0]
 
 

@@ -1,0 +1,32 @@
+"""Run a module as a child that dies with its parent: ``python -m launch_scripts.trial_runner._child PARENT_PID MODULE ARGS...``.
+
+On Linux it asks the kernel to send it SIGTERM when its parent dies (prctl
+PR_SET_PDEATHSIG), then checks that the parent is still the one that started it (it may
+have died before the request), and runs ``python -m MODULE ARGS...`` in this process.
+Done here after exec rather than in a ``preexec_fn``, which may deadlock when the parent
+has threads (the trial's publisher and subscribers do).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import runpy
+import signal
+import sys
+
+_PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+
+def main() -> None:
+    parent, module, args = int(sys.argv[1]), sys.argv[2], sys.argv[3:]
+    if sys.platform.startswith("linux"):
+        ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    if os.getppid() != parent:
+        sys.exit(f"{module}: the process that started it has ended")
+    sys.argv = [module, *args]
+    runpy.run_module(module, run_name="__main__", alter_sys=True)
+
+
+if __name__ == "__main__":
+    main()
