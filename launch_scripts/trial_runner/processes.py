@@ -69,7 +69,12 @@ class Children:
         ready, _, _ = select.select([proc.stdout], [], [], timeout_s)
         line = proc.stdout.readline() if ready else ""
         if not line:
-            status = proc.poll()
+            # End of stdout means the child is exiting; give it a moment to be reaped so its
+            # status, not a time-out, is reported.
+            try:
+                status = proc.wait(timeout=5.0) if ready else proc.poll()
+            except subprocess.TimeoutExpired:
+                status = None
             why = f"exited with status {status}" if status is not None else f"printed no endpoint within {timeout_s:.0f} s"
             raise ChildError(f"{name} {why}: {_last_line(log_path) or 'no message'}")
         try:
