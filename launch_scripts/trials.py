@@ -15,8 +15,8 @@ Trials run in a local process pool (``--workers``, default 1; each trial also ru
 service processes) or on a local Ray instance (``--engine ray``, needs ``ray``). Outputs:
 REPORT.json (``success_rate``, ``wilson_95``, ``summary`` and the ``trials``, each with
 at least ``seed`` and ``success``), optionally a markdown summary and a picture per trial
-(the plan on the frame, the closed fingers, the lifted cloth), and the services' logs
-(``--log-dir``, default ``logs/`` beside REPORT.json). Exit status 0 when every trial ran
+(the plan on the frame, the closed fingers, the lifted cloth), and the logs of the
+services and of the trial workers (``--log-dir``, default ``logs/`` beside REPORT.json). Exit status 0 when every trial ran
 (whether its grasp succeeded or not), 1 when a trial could not run, 2 for bad arguments
 (one line on stderr).
 """
@@ -105,12 +105,16 @@ def _lost(seed: int, config: TrialConfig, failure: str) -> dict:
             "scene": scene_record(seed, config.scene_options)}
 
 
-def _quiet_stdout() -> None:
-    """Pool worker initializer: trials have nothing to say on stdout, but PyBullet prints its
-    build time there from C; keep the runner's output to the progress bar and the summary."""
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    os.dup2(devnull, 1)
-    os.close(devnull)
+def _worker_output_to(path: str) -> None:
+    """Pool worker initializer: the worker's stdout and stderr (PyBullet's banner, warnings
+    of failed trials, which their records also hold) go to a file, so the console shows
+    only the progress bar and the summary."""
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    os.dup2(fd, 1)
+    os.dup2(fd, 2)
+    os.close(fd)
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(process)d %(levelname)s %(name)s: %(message)s")
 
 
 def _run_local(seeds: list[int], config: TrialConfig, workers: int, progress) -> list[dict]:
@@ -118,8 +122,9 @@ def _run_local(seeds: list[int], config: TrialConfig, workers: int, progress) ->
     # cross a fork), and one process per trial returns its memory when it ends.
     context = multiprocessing.get_context("spawn")
     records = []
+    workers_log = str(Path(config.log_dir) / "workers.log") if config.log_dir else os.devnull
     with concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=context, max_tasks_per_child=1,
-                                                initializer=_quiet_stdout) as pool:
+                                                initializer=_worker_output_to, initargs=(workers_log,)) as pool:
         futures = {pool.submit(run_trial, seed, config): seed for seed in seeds}
         for future in concurrent.futures.as_completed(futures):
             seed = futures[future]
@@ -209,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"summary: {args.markdown}")
     if args.pictures is not None:
         print(f"pictures: {args.pictures}/trial_seed<S>.png")
-    print(f"service logs: {log_dir}")
+    print(f"logs: {log_dir}")
     could_not_run = rep["summary"]["trials_that_could_not_run"]
     return 1 if could_not_run else 0
 

@@ -96,7 +96,6 @@ def test_slow_consumer_gets_the_newest_frame_and_memory_stays_bounded():
         newest = sub.recv_latest(timeout_s=2.0)
         assert newest is not None and newest.seq == n + 1 and newest.rgb[0, 0, 0] == 7
         assert sub.recv_latest(timeout_s=0.2) is None  # no backlog behind the newest
-        assert sub.skipped >= n // 2
         assert peak < 150 * 2**20, f"memory grew by {peak / 2**20:.0f} MiB"
 
 
