@@ -10,11 +10,13 @@ What a seed draws (``laundry_spec``):
 - cloth: a towel (rectangle 0.35-0.60 m by 0.30-0.50 m) or a T-shirt (the default
   ``TShirtShape`` scaled by 0.60-0.85), printed (poster texture) or plain coloured;
 - initial state (``INITIAL_STATES``): ``flat`` (laid flat at a random yaw and dropped
-  from a few centimetres), ``crumpled`` (dropped from 10-25 cm in a random tilted pose,
-  so it lands creased and partly folded), ``folded`` (a straight fold: the part of the
-  cloth beyond a random row or column of its vertices is turned over before the drop), or ``held``
-  (hanging from a holder that pins one true corner, its lowest point above the table;
-  the holder is a visible box around that corner, which it hides as a hand would);
+  from a few centimetres), ``crumpled`` (dropped edge first from 10-25 cm in a pose
+  tilted by 35-75 degrees; it lands shifted and creased, mostly spread: PyBullet's
+  cloth has no self-collision and little bending stiffness), ``folded`` (a straight
+  fold: the part of the cloth beyond a random row or column of its vertices is turned
+  over before the drop), or ``held`` (hanging from a holder that clamps one true
+  corner, its lowest point above the table; the holder is a visible box around that
+  corner, which it hides as a hand would);
 - table: top 0.70-0.78 m above the floor, 1.2 m x 0.8 m, neutral grey;
 - camera: 1.0-1.3 m from the cloth, 50-70 degrees above the horizontal, azimuth within
   20 degrees of the table's front (-y), aim jittered by a few centimetres; Kinect-like
@@ -302,8 +304,8 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
     """Draw a laundry scene from ``seed`` (see the module docstring).
 
     camera : CameraInfo, default Kinect-like 640x480
-    state, cloth_kind : force the initial state or cloth kind (the rest is still drawn
-        from the seed, from the same stream, so forcing one changes nothing else's draw)
+    state, cloth_kind : force the initial state or cloth kind (tests, demonstrations);
+        everything else is still drawn from the seed
     """
     seed = _check_seed(seed)
     if state is not None and state not in INITIAL_STATES:

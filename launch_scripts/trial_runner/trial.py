@@ -6,7 +6,7 @@ the tests. This process owns the simulation and plays the robot's controller::
     this process: LaundryScene --RGBDFrame (PUB, free port)--> perception service process
     perception service --MeshEstimate--> planner service process (and this process)
     this process --InitialiseRequest (mask)--> perception;  --GraspRequest--> planner
-    this process: execute the best plan in the simulation, judge it by ground truth
+    this process: execute a plan in the simulation, judge it by ground truth
 
 Steps: build the scene from the seed (``sim.laundry``); start both services on free
 loopback ports; find the cloth against a picture of the empty table
@@ -14,8 +14,9 @@ loopback ports; find the cloth against a picture of the empty table
 the perception service to initialise on it; publish ``observe_frames`` frames one at a
 time, each after the estimate of the previous one arrived (republished with back-off
 until it does, so a slow joiner or a loaded machine only delays the trial); request a
-plan of the configured mode; execute the best candidate (``sim.grasp_execution``); judge
-it (``judge.judge``). Children are stopped on every exit path and every wait is bounded.
+plan of the configured mode; execute the candidate the controller chooses (the
+planner's best; the lowest one when the cloth is held up, ``lowest_when_held``) with
+``sim.grasp_execution``; judge it (``judge.judge``). Children are stopped on every exit path and every wait is bounded.
 
 The record (a JSON-ready dict) holds at least ``seed`` and ``success``; see ``run_trial``.
 """
@@ -247,11 +248,11 @@ def run_trial(seed: int, config: TrialConfig | None = None,
     ``confidence``, ``lifted_clear``, ``lowest_clearance_m``, ``held_nodes``,
     ``timing`` (``init_ms`` and median ``tracking_ms`` from the tracker, ``planning_ms``
     the request's round trip, ``total_s``), ``picture`` (path or None).
-    Never raises for a failed trial; a bad ``config`` raises ValueError.
+    Never raises: a trial that cannot run (a service that does not start, a timeout, a
+    scene option that does not exist) is a record whose ``failure`` starts with "error:".
     """
-    from ipc.transport import (
-        Publisher,  # zmq and PyBullet are loaded by the trial, not on import
-    )
+    # zmq and PyBullet are loaded when a trial runs, not when the runner imports this module.
+    from ipc.transport import Publisher
     from sim.laundry import LaundryScene, laundry_spec
 
     config = config if config is not None else TrialConfig()

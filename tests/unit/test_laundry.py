@@ -124,13 +124,13 @@ def test_initial_shapes_keep_the_cloths_edge_lengths(state, kind):
             np.testing.assert_allclose(stretch, 1.0, atol=1e-9)
 
 
-def test_forced_state_and_kind_keep_the_rest_of_the_draw():
-    free, forced = laundry_spec(4), laundry_spec(4, state="held", cloth_kind="towel")
+def test_forced_state_and_kind_and_a_held_cloth_hangs_from_a_true_corner():
+    forced = laundry_spec(4, state="held", cloth_kind="towel")
     assert forced.state == "held" and forced.cloth_kind == "towel"
-    assert forced.holder_vertex is not None
     held_uv = forced.cloth.uv_m[forced.holder_vertex]
     assert min(np.linalg.norm(forced.corners_uv - held_uv, axis=1)) < 1e-9  # held by a true corner
-    assert forced.table_top_z == free.table_top_z
+    np.testing.assert_array_equal(forced.holder_position, forced.cloth_vertices_world[forced.holder_vertex])
+    assert forced.cloth_vertices_world[:, 2].min() > forced.table_top_z + 0.04  # hanging clear of the table
 
 
 @pytest.mark.parametrize("kw, match", [
