@@ -442,7 +442,8 @@ def _rgbd_from_wire(kwargs: dict, where: str) -> dict:
 
 def _schemas() -> dict[type, _Message]:
     f64 = ("float64",)
-    timestamp, seq, request_id = _Float(), _Int(), _Int(lo=0)
+    timestamp, seq, request_id, count = _Float(), _Int(), _Int(lo=0), _Int(lo=0)
+    time_or_nil = _Optional(_Float(lo=0.0))  # a duration >= 0, nil while nothing was measured
     camera = _Message(
         m.CameraInfo,
         {
@@ -523,10 +524,26 @@ def _schemas() -> dict[type, _Message]:
             {
                 "request_id": request_id,
                 "state": _Str(),
-                "frames_processed": _Int(lo=0),
+                "frames_processed": count,
                 "last_seq": seq,
                 "parameters": _Map(_Scalar()),
                 "message": _Str(),
+                "uptime_s": _Float(lo=0.0),
+                "source": _Str(),
+                "frame_age_s": time_or_nil,
+                "frames_received": count,
+                "frames_tracked": count,
+                "frames_dropped": count,
+                "frames_rejected": count,
+                "rejected_by_kind": _Map(count),
+                "messages_malformed": count,
+                "latency_ms_median": time_or_nil,
+                "latency_ms_p99": time_or_nil,
+                "tracking_ms_median": time_or_nil,
+                "confidence": _Optional(_Float(lo=0.0)),
+                "lost_streak": count,
+                "reinitialisations": count,
+                "discontinuities": count,
             },
         ),
         _Message(m.ErrorReply, {"code": _Str(), "message": _Str(), "request_id": request_id}),

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 
 
 def _check_array(name: str, value, shape: tuple, dtype=None, finite: bool = False) -> np.ndarray:
@@ -229,11 +229,31 @@ class GraspPlan:
         object.__setattr__(self, "vertex_id", int(self.vertex_id))
 
 
+def _check_count(name: str, value) -> int:
+    """Return ``value`` as a non-negative int (never a bool or float); raise ValueError naming ``name``."""
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or value < 0:
+        raise ValueError(f"{name}: expected a non-negative integer, got {value!r}")
+    return int(value)
+
+
 def _check_request_id(owner: str, value) -> int:
     """Return ``value`` as a non-negative int; raise ValueError naming ``owner.request_id``."""
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
-        raise ValueError(f"{owner}.request_id: expected a non-negative integer, got {value!r}")
-    return int(value)
+    return _check_count(f"{owner}.request_id", value)
+
+
+def _check_number(name: str, value, lo: float = 0.0, hi: float = math.inf, optional: bool = False) -> float | None:
+    """Return ``value`` as a finite float in [lo, hi], or None when ``optional`` and it is None.
+
+    "No data" travels as nil, never as NaN: NaN compares false to everything and has no
+    JSON form, so each reader in another language would need its own rule for it.
+    """
+    if value is None and optional:
+        return None
+    ok = not isinstance(value, (bool, np.bool_)) and isinstance(value, (int, float, np.integer, np.floating))
+    if not ok or not (math.isfinite(float(value)) and lo <= float(value) <= hi):
+        want = f"a number >= {lo:g}" if hi == math.inf else f"a number in [{lo:g}, {hi:g}]"
+        raise ValueError(f"{name}: expected {want}{' or None' if optional else ''}, got {value!r}")
+    return float(value)
 
 
 def _check_parameters(name: str, params, allow_empty: bool) -> dict:
@@ -397,6 +417,10 @@ class StatusRequest:
 class StatusReply:
     """The perception service's state; the reply to every control request that succeeded.
 
+    Every counter and measurement is a field of its own, so that a controller in any
+    language reads numbers, not text. Counters run from the service's start (compare
+    ``uptime_s`` to notice a restart), except ``frames_processed``.
+
     request_id : int >= 0, the request's id
     state : one of ``STATES``: "idle" (no mesh), "initialising" (mesh to be built on
         the next frame), "tracking", "lost" (the data no longer explains the mesh)
@@ -405,6 +429,27 @@ class StatusReply:
     parameters : dict, name -> bool | int | float | str, every tracker parameter the
         service accepts in a SetParametersRequest, with its current value
     message : one line for a person, may be empty
+    uptime_s : float >= 0, seconds since the service started
+    source : one of ``SOURCES``: "waiting" (nothing received from the frame source yet),
+        "live" (messages arriving), "stale" (silent for the stale limit: the source is gone)
+    frame_age_s : float >= 0, seconds since the last frame arrived; None before the first
+    frames_received : int >= 0, frames received from the frame source
+    frames_tracked : int >= 0, frames initialised on or tracked, one estimate published each
+    frames_dropped : int >= 0, frames skipped because a newer one arrived first
+    frames_rejected : int >= 0, frames not tracked because they were unusable
+    rejected_by_kind : dict, kind -> int >= 0, ``frames_rejected`` by cause, kinds seen only;
+        the counts sum to ``frames_rejected``
+    messages_malformed : int >= 0, messages on the frames endpoint that could not be decoded
+    latency_ms_median, latency_ms_p99 : float >= 0, milliseconds from a frame's arrival
+        to its estimate's publication, over the recent estimates; None before the first
+    tracking_ms_median : float >= 0, median ``MeshEstimate.timing_ms`` of the recent
+        estimates; None before the first
+    confidence : float in [0, 1], ``confidence`` of the last estimate published; None before the first
+    lost_streak : int >= 0, consecutive lost or rejected frames while tracking
+    reinitialisations : int >= 0, automatic re-initialisations
+    discontinuities : int >= 0, discontinuities of the frame stream seen
+
+    None stands for "no data yet" (nil on the wire), never NaN.
     """
 
     request_id: int = 0
@@ -413,20 +458,56 @@ class StatusReply:
     last_seq: int = -1
     parameters: dict = field(default_factory=dict)
     message: str = ""
+    uptime_s: float = 0.0
+    source: str = "waiting"
+    frame_age_s: float | None = None
+    frames_received: int = 0
+    frames_tracked: int = 0
+    frames_dropped: int = 0
+    frames_rejected: int = 0
+    rejected_by_kind: dict = field(default_factory=dict)
+    messages_malformed: int = 0
+    latency_ms_median: float | None = None
+    latency_ms_p99: float | None = None
+    tracking_ms_median: float | None = None
+    confidence: float | None = None
+    lost_streak: int = 0
+    reinitialisations: int = 0
+    discontinuities: int = 0
 
     STATES = ("idle", "initialising", "tracking", "lost")
+    SOURCES = ("waiting", "live", "stale")
+    COUNTERS = ("frames_processed", "frames_received", "frames_tracked", "frames_dropped", "frames_rejected",
+                "messages_malformed", "lost_streak", "reinitialisations", "discontinuities")
+    OPTIONAL_TIMES = ("frame_age_s", "latency_ms_median", "latency_ms_p99", "tracking_ms_median")
 
     def __post_init__(self):
         object.__setattr__(self, "request_id", _check_request_id("StatusReply", self.request_id))
         if self.state not in self.STATES:
             raise ValueError(f"StatusReply.state: expected one of {self.STATES}, got {self.state!r}")
-        if int(self.frames_processed) < 0:
-            raise ValueError(f"StatusReply.frames_processed: expected a non-negative integer, got {self.frames_processed}")
+        if self.source not in self.SOURCES:
+            raise ValueError(f"StatusReply.source: expected one of {self.SOURCES}, got {self.source!r}")
         if not isinstance(self.message, str) or "\n" in self.message:
             raise ValueError("StatusReply.message: expected a single-line string")
-        object.__setattr__(self, "frames_processed", int(self.frames_processed))
+        for name in self.COUNTERS:
+            object.__setattr__(self, name, _check_count(f"StatusReply.{name}", getattr(self, name)))
         object.__setattr__(self, "last_seq", int(self.last_seq))
         object.__setattr__(self, "parameters", _check_parameters("StatusReply.parameters", self.parameters, allow_empty=True))
+        object.__setattr__(self, "uptime_s", _check_number("StatusReply.uptime_s", self.uptime_s))
+        for name in self.OPTIONAL_TIMES:
+            object.__setattr__(self, name, _check_number(f"StatusReply.{name}", getattr(self, name), optional=True))
+        object.__setattr__(self, "confidence", _check_number("StatusReply.confidence", self.confidence, hi=1.0, optional=True))
+        if not isinstance(self.rejected_by_kind, dict):
+            raise ValueError(f"StatusReply.rejected_by_kind: expected a dict, got {type(self.rejected_by_kind).__name__}")
+        by_kind = {}
+        for kind, n in self.rejected_by_kind.items():
+            if not isinstance(kind, str) or not kind:
+                raise ValueError(f"StatusReply.rejected_by_kind: kinds must be non-empty strings, got {kind!r}")
+            by_kind[kind] = _check_count(f"StatusReply.rejected_by_kind[{kind!r}]", n)
+        if sum(by_kind.values()) != self.frames_rejected:
+            raise ValueError(f"StatusReply.rejected_by_kind: counts sum to {sum(by_kind.values())}, "
+                             f"expected frames_rejected = {self.frames_rejected}")
+        object.__setattr__(self, "rejected_by_kind", by_kind)
 
 
 @dataclass(frozen=True)

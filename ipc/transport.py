@@ -332,6 +332,10 @@ class Subscriber:
     Counters (ints, read any time): ``received`` (messages of any type), ``skipped``
     (data messages replaced by a newer one before ``recv_latest`` took them),
     ``malformed`` (dropped as ProtocolError, each logged).
+
+    Arrival times (``time.monotonic()``, None before the first), so a consumer can tell
+    how old its data is: ``data_arrived_at`` of the newest data message received,
+    ``taken_arrived_at`` of the message ``recv_latest`` returned last.
     """
 
     def __init__(
@@ -359,6 +363,8 @@ class Subscriber:
         self._socket.sock.setsockopt(zmq.SUBSCRIBE, b"")
         self._cond = threading.Condition()
         self._latest: list | None = None
+        self.data_arrived_at: float | None = None
+        self.taken_arrived_at: float | None = None
         self._last_heartbeat: Heartbeat | None = None
         self._start = time.monotonic()
         self._last_rx: float | None = None
@@ -385,10 +391,14 @@ class Subscriber:
                         return None
                     self._cond.wait(remaining)
                 frames, self._latest = self._latest, None
+                arrived_at = self.data_arrived_at
             try:
-                return decode(frames, self.limits)
+                msg = decode(frames, self.limits)
             except ProtocolError as e:
                 self._count_malformed(e)
+                continue
+            self.taken_arrived_at = arrived_at
+            return msg
 
     @property
     def age_s(self) -> float:
@@ -470,6 +480,7 @@ class Subscriber:
             if self._latest is not None:
                 self.skipped += 1
             self._latest = frames
+            self.data_arrived_at = now
             self._cond.notify_all()
 
     def _on_heartbeat(self, beat: Heartbeat) -> None:

@@ -33,7 +33,7 @@ import threading
 import time
 
 from ipc import endpoints
-from ipc.messages import MeshEstimate, StatusRequest
+from ipc.messages import MeshEstimate, StatusReply, StatusRequest
 from ipc.transport import RemoteError, RequestClient, RequestTimeout, Subscriber
 from launch_scripts.publish_frames import OneLineParser
 
@@ -104,6 +104,15 @@ def describe(estimate: MeshEstimate) -> str:
             f"confidence {estimate.confidence:.2f}{', LOST' if estimate.lost else ''}, {estimate.timing_ms:.1f} ms")
 
 
+def describe_status(status: StatusReply) -> str:
+    """One line for a person about the perception service's StatusReply."""
+    latency = "none" if status.latency_ms_median is None else f"{status.latency_ms_median:.1f} ms"
+    line = (f"status: {status.state}, {status.frames_processed} frames since init; source {status.source}, "
+            f"{status.frames_received} frames in, {status.frames_tracked} tracked, {status.frames_dropped} dropped, "
+            f"{status.frames_rejected} rejected; median latency {latency}")
+    return f"{line}; {status.message}" if status.message else line
+
+
 def monitor(ends: dict, procs: dict, stop: threading.Event, args) -> int:
     """Print estimates and status until ``stop``, ``--duration-s`` or a child's end; returns the exit status."""
     deadline = None if args.duration_s is None else time.monotonic() + args.duration_s
@@ -124,7 +133,7 @@ def monitor(ends: dict, procs: dict, stop: threading.Event, args) -> int:
                 next_status = now + args.status_period_s
                 try:
                     status = control.request(StatusRequest())
-                    print(f"status: {status.state}, {status.frames_processed} frames since init; {status.message}", flush=True)
+                    print(describe_status(status), flush=True)
                 except (RequestTimeout, RemoteError) as e:
                     print(f"status: no answer ({e})", flush=True)
     return 0

@@ -11,13 +11,14 @@ Two layers:
   estimates and states out. States are those of ``StatusReply.STATES``:
   "idle" (no mesh; frames are counted, not tracked), "initialising" (a mesh is built on
   the next usable frame), "tracking", "lost" (the last estimate was flagged lost).
-- ``PerceptionService``: the sockets and the loop around a core, plus the status line
-  and an optional live viewer (rerun-sdk).
+- ``PerceptionService``: the sockets and the loop around a core, plus what only it can
+  measure for the ``StatusReply`` (frame arrivals, latency) and an optional live viewer
+  (rerun-sdk).
 
 Bad input never stops the service: a frame the tracker rejects, a frame without any
 valid depth, a frame from another camera (size or intrinsics), a failed initialisation
-or a tracker failure is logged once per kind, counted (``rejected_<kind>`` in the status
-line) and skipped; malformed messages are dropped by the subscriber and counted.
+or a tracker failure is logged once per kind, counted (``StatusReply.rejected_by_kind``)
+and skipped; malformed messages are dropped by the subscriber and counted.
 
 Automatic (re-)initialisation by depth segmentation, when ``auto_init`` is on (default):
 at start; after a discontinuity of the frame stream (the source was silent for the
@@ -35,6 +36,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,6 +58,10 @@ log = logging.getLogger(__name__)
 
 #: Value types a tracker parameter must have to be read and set over the wire.
 WIRE_TYPES = (bool, int, float, str)
+
+#: Estimates over which StatusReply summarises latency and tracking time: a few seconds
+#: at camera rates, so the figures follow a change of load, and enough for a 99th percentile.
+RECENT_ESTIMATES = 100
 
 
 def tracker_parameters(config: TrackerConfig) -> dict:
@@ -126,6 +132,7 @@ class PerceptionCore:
         self.counters = Counters()
         self.frames_since_init = 0  # frames processed since the last initialisation, that one included
         self.last_seq = -1  # seq of the last frame processed
+        self.last_confidence: float | None = None  # confidence of the last estimate, None before the first
         self.lost_streak = 0  # consecutive lost or rejected frames while tracking
         self.last_error = ""  # one line: why the last initialisation or frame failed
         self._pending_mask: np.ndarray | None = None
@@ -238,6 +245,7 @@ class PerceptionCore:
         self.counters.processed += 1
         self.frames_since_init += 1
         self.last_seq = frame.seq
+        self.last_confidence = estimate.confidence
         if estimate.lost:
             self.state = "lost"
             self._bad_frame()
@@ -308,7 +316,9 @@ class PerceptionService:
     def __init__(self, tracker_config: TrackerConfig | None = None, config: ServiceConfig = ServiceConfig()):
         self.config = config
         self.core = PerceptionCore(tracker_config, auto_init=config.auto_init, reinit_after_lost=config.reinit_after_lost)
-        self.last_latency_ms: float | None = None
+        self._started_at = time.monotonic()
+        # (latency_ms, tracking_ms) of the recent estimates published
+        self._recent: deque = deque(maxlen=RECENT_ESTIMATES)
         self._returned = threading.Event()  # set by the subscriber's thread when the source comes back
         self._last_beat = None
         self._viewer = None
@@ -347,13 +357,13 @@ class PerceptionService:
         self._check_source()
         if frame is None:
             return None
-        taken = time.perf_counter()
+        arrived_at = self._frames.taken_arrived_at
         if frame.seq < self.core.last_seq and self.core.state in ("tracking", "lost"):
             self.core.discontinuity(f"frame seq went back from {self.core.last_seq} to {frame.seq}")
         estimate = self.core.handle_frame(frame)
         if estimate is not None:
             self._estimates.publish(estimate)
-            self.last_latency_ms = (time.perf_counter() - taken) * 1000.0
+            self._recent.append(((time.monotonic() - arrived_at) * 1000.0, estimate.timing_ms))
         if self._viewer is not None:
             self._viewer.show(frame, estimate)
         return estimate
@@ -398,29 +408,30 @@ class PerceptionService:
         return self.status(request.request_id)
 
     def status(self, request_id: int = 0) -> StatusReply:
-        """The StatusReply for ``request_id``: state, counts, parameters, and the status line."""
-        core = self.core
-        return StatusReply(request_id=request_id, state=core.state, frames_processed=core.frames_since_init,
-                           last_seq=core.last_seq, parameters=core.parameters(), message=self.status_line())
-
-    def status_line(self) -> str:
-        """One line of ``key=value`` tokens (docs/protocol.md, "Status line"), ``error=`` last."""
+        """The StatusReply for ``request_id`` (docs/protocol.md, "StatusReply from the
+        perception service"); its message is the last error, if any."""
         core, counters, frames = self.core, self.core.counters, self._frames
         if frames.age_s == math.inf:
             source = "waiting"
         else:
             source = "stale" if frames.stale else "live"
-        age = "none" if frames.age_s == math.inf else f"{frames.age_s:.2f}"
-        latency = "none" if self.last_latency_ms is None else f"{self.last_latency_ms:.1f}"
-        tokens = [f"source={source}", f"source_age_s={age}", f"frames_in={counters.frames_taken + frames.skipped}",
-                  f"processed={counters.processed}", f"dropped={frames.skipped}",
-                  f"rejected={sum(counters.rejected.values())}"]
-        tokens += [f"rejected_{kind}={n}" for kind, n in sorted(counters.rejected.items())]
-        tokens += [f"malformed={frames.malformed}", f"latency_ms={latency}", f"lost_streak={core.lost_streak}",
-                   f"reinits={counters.reinitialisations}", f"discontinuities={counters.discontinuities}"]
-        if core.last_error:
-            tokens.append("error=" + " ".join(core.last_error.split()))
-        return " ".join(tokens)
+        arrived_at = frames.data_arrived_at
+        latency_median = latency_p99 = tracking_median = None
+        if self._recent:
+            latencies, trackings = np.array(self._recent).T
+            latency_median, latency_p99 = np.percentile(latencies, [50, 99])
+            tracking_median = np.median(trackings)
+        return StatusReply(
+            request_id=request_id, state=core.state, frames_processed=core.frames_since_init, last_seq=core.last_seq,
+            parameters=core.parameters(), message=" ".join(core.last_error.split()),
+            uptime_s=time.monotonic() - self._started_at, source=source,
+            frame_age_s=None if arrived_at is None else time.monotonic() - arrived_at,
+            frames_received=counters.frames_taken + frames.skipped, frames_tracked=counters.processed,
+            frames_dropped=frames.skipped, frames_rejected=sum(counters.rejected.values()),
+            rejected_by_kind=counters.rejected, messages_malformed=frames.malformed,
+            latency_ms_median=latency_median, latency_ms_p99=latency_p99, tracking_ms_median=tracking_median,
+            confidence=core.last_confidence, lost_streak=core.lost_streak,
+            reinitialisations=counters.reinitialisations, discontinuities=counters.discontinuities)
 
     def close(self) -> None:
         """Close the sockets (and the viewer's recording)."""

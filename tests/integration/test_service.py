@@ -76,23 +76,21 @@ def wait_until(predicate, timeout_s, poll_s=0.02):
     return predicate()
 
 
-def status_fields(reply: StatusReply) -> dict:
-    """The status line's key=value tokens (error= runs to the end of the line)."""
-    line = reply.message
-    error = ""
-    if " error=" in line:
-        line, error = line.split(" error=", 1)
-    out = dict(token.split("=", 1) for token in line.split())
-    if error:
-        out["error"] = error
-    return out
-
-
-def documented_status_keys():
-    """The keys of the status line's table in docs/protocol.md, in order."""
+def documented_reject_kinds():
+    """The kinds of the perception service's table of rejected frames in docs/protocol.md."""
     doc = (Path(__file__).resolve().parents[2] / "docs" / "protocol.md").read_text()
-    table = doc[doc.index("**Status line.**"):doc.index("Example: `source=")]
-    return re.findall(r"^\| `([\w<>]+)` \|", table, flags=re.M)
+    table = doc[doc.index("| kind | cause |"):doc.index("`messages_malformed`.")]
+    return re.findall(r"^\| `(\w+)` \|", table, flags=re.M)
+
+
+def assert_frames_add_up(reply: StatusReply, idle_frames_possible: bool) -> None:
+    """Every frame received was tracked, dropped, rejected or (only while idle) counted."""
+    accounted = reply.frames_tracked + reply.frames_dropped + reply.frames_rejected
+    if idle_frames_possible:
+        assert reply.frames_received >= accounted, reply
+    else:
+        assert reply.frames_received == accounted, reply
+    assert sum(reply.rejected_by_kind.values()) == reply.frames_rejected
 
 
 class ListSource(FrameSource):
@@ -157,9 +155,14 @@ def test_control_requests_round_trip(frames):
         assert reply.request_id == 11 and reply.state == "idle" and reply.last_seq == -1
         assert reply.parameters["lambda_d"] == 0.6 and reply.parameters["features"] == "klt"
         assert "outlier_radii_m" not in reply.parameters  # a tuple: not settable over the wire
-        assert wait_until(lambda: int(status_fields(run.status())["frames_in"]) >= 3, 10.0)
+        assert wait_until(lambda: run.status().frames_received >= 3, 10.0)
         assert run.estimates.recv_latest(timeout_s=0.3) is None  # idle: frames counted, not tracked
-        assert status_fields(run.status())["processed"] == "0"
+        idle = run.status()
+        assert idle.frames_tracked == 0 and idle.source == "live" and idle.frame_age_s >= 0
+        # Nothing tracked, so nothing measured: nil on the wire, not NaN or 0.
+        assert (idle.latency_ms_median, idle.latency_ms_p99, idle.tracking_ms_median, idle.confidence) == (None,) * 4
+        assert idle.uptime_s > 0 and idle.message == ""
+        assert_frames_add_up(idle, idle_frames_possible=True)
 
         with pytest.raises(RemoteError, match=r"InitialiseRequest.mask: expected shape \(240, 320\)") as e:
             run.control.request(InitialiseRequest(request_id=2, mask=np.ones((10, 10), np.uint8)))
@@ -173,6 +176,13 @@ def test_control_requests_round_trip(frames):
         assert med < 0.006 and inside, (med, inside)
         assert wait_until(lambda: run.status().state == "tracking" and run.status().frames_processed >= 3, 10.0)
         n_vertices = len(est.vertices)
+        tracking = run.status()
+        assert tracking.frames_tracked >= tracking.frames_processed >= 3
+        assert tracking.frames_received > idle.frames_received
+        assert_frames_add_up(tracking, idle_frames_possible=True)
+        # Each latency spans its frame's tracking, so the median latency is at least the median tracking time.
+        assert 0 < tracking.tracking_ms_median <= tracking.latency_ms_median <= tracking.latency_ms_p99
+        assert 0 <= tracking.confidence <= 1 and tracking.uptime_s > idle.uptime_s
 
         reply = run.control.request(SetParametersRequest(request_id=4, parameters={"lambda_d": 0.5, "max_iterations": 4}))
         assert reply.parameters["lambda_d"] == 0.5 and reply.parameters["max_iterations"] == 4
@@ -219,22 +229,24 @@ def test_bad_frames_are_counted_and_tracking_goes_on(frames):
             while run.estimates.recv_latest(timeout_s=0.5) is not None:
                 pass  # estimates of copies of frame 0 still on their way
 
-            def send_and_count(message_frames, key):
-                before = int(status_fields(run.status()).get(key, 0))
+            def send_and_count(message_frames, count):
+                before = count(run.status())
                 raw.send_multipart(message_frames)
-                assert wait_until(lambda: int(status_fields(run.status()).get(key, 0)) == before + 1, 10.0), \
-                    run.status().message
+                assert wait_until(lambda: count(run.status()) == before + 1, 10.0), run.status()
 
+            good = run.status()
+            assert (good.frames_rejected, good.rejected_by_kind, good.messages_malformed, good.message) == (0, {}, 0, "")
             small = CameraInfo.from_fov(160, 120, np.deg2rad(45))
             send_and_count(encode(RGBDFrame(np.zeros((120, 160, 3), np.uint8), np.full((120, 160), 1.3, np.float32),
-                                            small, 0.1, 1)), "rejected_camera_changed")
+                                            small, 0.1, 1)), lambda r: r.frames_rejected)
             nan_depth = dataclasses.replace(frames[1], depth_m=np.full((240, 320), np.nan, np.float32), seq=2)
-            send_and_count(encode(nan_depth), "rejected_no_depth")
-            send_and_count([b"\x93 not a message"], "malformed")
-            fields = status_fields(run.status())
-            assert fields["error"].startswith("frame 2: no valid depth pixel") and fields["rejected"] == "2"
-            keys = [k if not k.startswith("rejected_") else "rejected_<kind>" for k in fields]
-            assert [k for i, k in enumerate(keys) if k != keys[i - 1]] == documented_status_keys()
+            send_and_count(encode(nan_depth), lambda r: r.rejected_by_kind.get("no_depth", 0))
+            send_and_count([b"\x93 not a message"], lambda r: r.messages_malformed)
+            bad = run.status()
+            assert bad.message.startswith("frame 2: no valid depth pixel") and bad.frames_rejected == 2
+            assert bad.rejected_by_kind == {"camera_changed": 1, "no_depth": 1}
+            assert set(bad.rejected_by_kind) <= set(documented_reject_kinds())
+            assert bad.frames_tracked == good.frames_tracked and bad.frames_received == good.frames_received + 2
 
             got = []
             for k in range(1, 6):
@@ -248,7 +260,9 @@ def test_bad_frames_are_counted_and_tracking_goes_on(frames):
             reply = run.status()
             # Frame 0 was sent until the service's subscription had arrived: it may have tracked copies.
             assert reply.state == "tracking" and reply.last_seq == 15 and reply.frames_processed >= 6
-            assert status_fields(reply)["processed"] == str(reply.frames_processed)
+            assert reply.frames_tracked == reply.frames_processed and reply.confidence == got[-1].confidence
+            assert_frames_add_up(reply, idle_frames_possible=False)  # auto_init: never idle
+            assert 0 < reply.tracking_ms_median <= reply.latency_ms_median <= reply.latency_ms_p99
     finally:
         raw.close()
 

@@ -76,6 +76,14 @@ def test_round_trip(cls, inline_max_bytes):
     assert_same(out, decode(encode(out)))
 
 
+def test_status_reply_nil_measurements_travel_as_nil():
+    fields = header(encode(m.StatusReply()))["fields"]
+    for name in ("frame_age_s", "latency_ms_median", "latency_ms_p99", "tracking_ms_median", "confidence"):
+        assert name in fields and fields[name] is None, name
+    full = EXAMPLES[m.StatusReply]
+    assert decode(encode(full)).rejected_by_kind == full.rejected_by_kind == {"no_depth": 2, "camera_changed": 1}
+
+
 def test_round_trip_of_optional_parts_left_out():
     for msg in [m.GraspRequest(), m.InitialiseRequest(), m.GraspPlanReply(), m.StatusReply(), m.CameraInfo(2, 2, np.eye(3))]:
         assert_same(msg, decode(encode(msg)))
@@ -253,6 +261,17 @@ CASES = [
     (m.InitialiseRequest, lambda f: set_array(f, "mask", np.zeros((2, 2)), "uint8"), r"InitialiseRequest\.mask: no non-zero pixel"),
     (m.ErrorReply, lambda f: f.update(code="bad"), r"ErrorReply\.code: expected one of"),
     (m.StatusReply, lambda f: f.update(message=b"ok"), r"StatusReply\.message: expected a string, got bytes"),
+    (m.StatusReply, lambda f: f.update(frames_dropped=-1), r"^StatusReply\.frames_dropped: expected an integer in \[0, \d+\], got -1$"),
+    (m.StatusReply, lambda f: f.update(frames_received=3.0), r"^StatusReply\.frames_received: expected an integer, got float$"),
+    (m.StatusReply, lambda f: f.update(messages_malformed=None), r"StatusReply\.messages_malformed: expected an integer, got NoneType"),
+    (m.StatusReply, lambda f: f["rejected_by_kind"].update(no_depth=-2), r"StatusReply\.rejected_by_kind\['no_depth'\]: expected an integer in \[0, "),
+    (m.StatusReply, lambda f: f["rejected_by_kind"].update(no_depth=5), r"StatusReply\.rejected_by_kind: counts sum to 6, expected frames_rejected = 3"),
+    (m.StatusReply, lambda f: f.update(latency_ms_median="fast"), r"^StatusReply\.latency_ms_median: expected a number, got str$"),
+    (m.StatusReply, lambda f: f.update(latency_ms_p99=float("nan")), r"StatusReply\.latency_ms_p99: expected a finite number, got nan"),
+    (m.StatusReply, lambda f: f.update(tracking_ms_median=-1.0), r"StatusReply\.tracking_ms_median: expected a number >= 0\.0, got -1\.0"),
+    (m.StatusReply, lambda f: f.update(uptime_s=None), r"StatusReply\.uptime_s: expected a number, got NoneType"),
+    (m.StatusReply, lambda f: f.update(confidence=1.25), r"StatusReply\.confidence: expected a number in \[0, 1\] or None, got 1\.25"),
+    (m.StatusReply, lambda f: f.update(source="gone"), r"StatusReply\.source: expected one of"),
 ]
 
 
@@ -268,7 +287,7 @@ def test_header_errors():
     frames = encode(EXAMPLES[m.StatusRequest])
     top = header(frames)
     for key, value, match in [
-        ("version", 2, r"^header\.version: unsupported schema version 2; this decoder speaks 1$"),
+        ("version", 1, r"^header\.version: unsupported schema version 1; this decoder speaks 2$"),
         ("version", 1.0, r"header\.version: unsupported schema version 1\.0"),
         ("version", "1", r"header\.version: unsupported schema version '1'"),
         ("type", "Pickle", r"^header\.type: unknown message type 'Pickle'$"),
@@ -290,7 +309,7 @@ def test_header_errors():
 
 
 def test_extension_types_and_duplicate_keys_are_refused():
-    ext = msgpack.packb({"type": "StatusRequest", "version": 1, "fields": {"request_id": msgpack.ExtType(1, b"\x80\x04N.")}})
+    ext = msgpack.packb({"type": "StatusRequest", "version": m.SCHEMA_VERSION, "fields": {"request_id": msgpack.ExtType(1, b"\x80\x04N.")}})
     with pytest.raises(ProtocolError, match="msgpack extension type 1 is not allowed"):
         decode([ext])
     # Hand-made map with the key "request_id" twice: a second value must not shadow the first.
@@ -300,7 +319,7 @@ def test_extension_types_and_duplicate_keys_are_refused():
         + msgpack.packb("type")
         + msgpack.packb("StatusRequest")
         + msgpack.packb("version")
-        + b"\x01"
+        + msgpack.packb(m.SCHEMA_VERSION)
         + msgpack.packb("fields")
         + body
     )

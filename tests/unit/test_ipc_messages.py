@@ -96,6 +96,42 @@ def test_status_reply():
         m.StatusReply(message="two\nlines")
 
 
+def test_status_reply_counters_and_measurements():
+    reply = m.StatusReply(frames_received=np.int64(5), frames_rejected=3, rejected_by_kind={"no_depth": 2, "tracker": 1},
+                          latency_ms_median=np.float32(2.5), confidence=1)
+    assert reply.frames_received == 5 and type(reply.frames_received) is int
+    assert reply.latency_ms_median == 2.5 and type(reply.latency_ms_median) is float
+    assert reply.confidence == 1.0 and reply.latency_ms_p99 is None and reply.frame_age_s is None
+    assert m.StatusReply().source == "waiting" and m.StatusReply().rejected_by_kind == {}
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        ({"frames_dropped": -1}, r"^StatusReply\.frames_dropped: expected a non-negative integer, got -1$"),
+        ({"frames_received": 2.0}, r"StatusReply\.frames_received: expected a non-negative integer, got 2\.0"),
+        ({"lost_streak": True}, r"StatusReply\.lost_streak: expected a non-negative integer, got True"),
+        ({"uptime_s": None}, r"^StatusReply\.uptime_s: expected a number >= 0, got None$"),
+        ({"uptime_s": -0.5}, r"StatusReply\.uptime_s: expected a number >= 0, got -0\.5"),
+        ({"latency_ms_median": math.nan}, r"^StatusReply\.latency_ms_median: expected a number >= 0 or None, got nan$"),
+        ({"latency_ms_p99": math.inf}, r"StatusReply\.latency_ms_p99: expected a number >= 0 or None, got inf"),
+        ({"tracking_ms_median": "3"}, r"StatusReply\.tracking_ms_median: expected a number >= 0 or None, got '3'"),
+        ({"frame_age_s": -1.0}, r"StatusReply\.frame_age_s: expected a number >= 0 or None"),
+        ({"confidence": 1.5}, r"^StatusReply\.confidence: expected a number in \[0, 1\] or None, got 1\.5$"),
+        ({"source": "gone"}, r"StatusReply\.source: expected one of \('waiting', 'live', 'stale'\), got 'gone'"),
+        ({"rejected_by_kind": [("no_depth", 1)]}, r"StatusReply\.rejected_by_kind: expected a dict, got list"),
+        ({"rejected_by_kind": {"": 0}}, r"StatusReply\.rejected_by_kind: kinds must be non-empty strings"),
+        ({"frames_rejected": 1, "rejected_by_kind": {"no_depth": -1}},
+         r"StatusReply\.rejected_by_kind\['no_depth'\]: expected a non-negative integer, got -1"),
+        ({"frames_rejected": 2, "rejected_by_kind": {"no_depth": 1}},
+         r"^StatusReply\.rejected_by_kind: counts sum to 1, expected frames_rejected = 2$"),
+    ],
+)
+def test_status_reply_rejects(kw, match):
+    with pytest.raises(ValueError, match=match):
+        m.StatusReply(**kw)
+
+
 def test_error_reply():
     e = m.ErrorReply("not_ready", "no estimate yet", request_id=4)
     assert (e.code, e.message, e.request_id) == ("not_ready", "no estimate yet", 4)
