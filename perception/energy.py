@@ -20,7 +20,7 @@ Where the paper is silent or orthographic, choices made here:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
@@ -86,9 +86,19 @@ class DepthTerm:
     K: np.ndarray
     outlier_m: float
     name: str = "depth"
+    _last: tuple | None = field(default=None, init=False, repr=False)
 
     def lookup(self, V: np.ndarray):
-        """Residual (N,) metres along each ray and the (N,) bool mask of vertices it applies to."""
+        """Residual (N,) metres along each ray, the (N,) bool mask of vertices it applies to
+        and the (N,) ray lengths ||v||. The solver asks for the energy and then the
+        Gauss-Newton model at the same V, so the last answer is kept (V is never changed
+        in place)."""
+        if self._last is not None and self._last[0] is V:
+            return self._last[1]
+        self._last = (V, self._lookup(V))
+        return self._last[1]
+
+    def _lookup(self, V: np.ndarray):
         h, w = self.range_m.shape
         cols, rows, inside = pixel_index(project(V, self.K), w, h)
         rho = self.range_m[rows, cols].astype(np.float64)
@@ -131,9 +141,17 @@ class BoundaryTerm:
 
     def __post_init__(self):
         self._tree = cKDTree(self.outline_points) if len(self.outline_points) else None
+        self._last = None
 
     def signed_distance(self, V: np.ndarray):
-        """For each boundary vertex: signed distance (B,), offset v - q (B, 3), sign (B,), active (B,)."""
+        """For each boundary vertex: signed distance (B,), offset v - q (B, 3), sign (B,), active (B,).
+        The last answer is kept, as in ``DepthTerm.lookup``."""
+        if self._last is not None and self._last[0] is V:
+            return self._last[1]
+        self._last = (V, self._signed_distance(V))
+        return self._last[1]
+
+    def _signed_distance(self, V: np.ndarray):
         n = len(self.vertex_ids)
         if self._tree is None or n == 0:
             z = np.zeros(n)

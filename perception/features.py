@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from perception.camera import project
+from perception.camera import pixel_index, project
 from perception.raster import bounding_box, locate_pixels
 
 log = logging.getLogger(__name__)
@@ -186,6 +186,13 @@ def predict_xy(bound: BoundFeatures, V: np.ndarray, faces: np.ndarray, K: np.nda
     return project(pts, K)
 
 
+def on_mask(xy: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """(P,) bool: pixel (P, 2) lies in the image and on ``mask`` (H, W) bool."""
+    h, w = mask.shape
+    cols, rows, inside = pixel_index(np.asarray(xy, np.float64), w, h)
+    return inside & mask[rows, cols]
+
+
 class DescriptorCorrespondences:
     """Matches features of each frame to the first frame's and the previous frame's bound features."""
 
@@ -207,7 +214,12 @@ class DescriptorCorrespondences:
         self.previous = None
         log.debug("bound %d first-frame features", len(self.first))
 
-    def match(self, grey, mask, V_pred, faces, K):
+    def prepare(self, grey, V_pred, faces, K, predicted_mask=None):
+        """Nothing: detection needs the object mask (a feature's descriptor must describe the
+        object, not what lies beyond its edge), so it happens in ``match``."""
+        return None
+
+    def match(self, grey, mask, V_pred, faces, K, prepared=None):
         """Matches for a new frame: (face_ids (P,), bary (P, 3), xy (P, 2) pixels in this frame)."""
         cur = self.detector.detect(grey, mask)
         self._current = cur
@@ -250,7 +262,7 @@ class KLTCorrespondences:
         self.xy: np.ndarray | None = None
         self._grey = None
         self._target = 0
-        self._lk = dict(winSize=(15, 15), maxLevel=3,
+        self._lk = dict(winSize=(15, 15), maxLevel=2,
                         criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
 
     @property
@@ -274,23 +286,38 @@ class KLTCorrespondences:
         self._target = len(self.bound)
         self._grey = grey
 
-    def match(self, grey, mask, V_pred, faces, K):
-        empty = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 2), np.float32))
+    def prepare(self, grey, V_pred, faces, K, predicted_mask=None):
+        """Optical flow of the tracked points into ``grey``, checked forwards and backwards:
+        (xy (P, 2) float32, ok (P,) bool). Needs no object mask and changes no state, so it
+        can run on another thread while the frame is segmented."""
         if self.bound is None or len(self.bound) == 0 or self._grey is None:
-            return empty
+            return np.zeros((0, 2), np.float32), np.zeros(0, bool)
         guess = predict_xy(self.bound, V_pred, faces, K).astype(np.float32)
         guess = np.where(np.isfinite(guess), guess, self.xy)
-        p0 = self.xy.reshape(-1, 1, 2)
-        p1, st, _ = cv2.calcOpticalFlowPyrLK(self._grey, grey, p0, guess.reshape(-1, 1, 2).copy(),
-                                             flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk)
-        pb, stb, _ = cv2.calcOpticalFlowPyrLK(grey, self._grey, p1, p0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk)
-        fb = np.linalg.norm((pb - p0).reshape(-1, 2), axis=1)
-        xy = p1.reshape(-1, 2)
+        # Both pyramids are built afresh by every call (OpenCV's Python binding takes no
+        # pyramids), so flow runs on the crop that holds the points, their predictions and
+        # the search window of the coarsest level.
         h, w = grey.shape
-        cols = np.clip(np.rint(xy[:, 0]).astype(int), 0, w - 1)
-        rows = np.clip(np.rint(xy[:, 1]).astype(int), 0, h - 1)
-        ok = (st.ravel() == 1) & (stb.ravel() == 1) & (fb < self.fb_max_px) & mask[rows, cols]
-        ok &= (xy[:, 0] >= 0) & (xy[:, 0] < w) & (xy[:, 1] >= 0) & (xy[:, 1] < h)
+        ends = np.concatenate([self.xy, guess])
+        pad = self._lk["winSize"][0] * 2 ** self._lk["maxLevel"]
+        x0, y0 = (max(0, int(v) - pad) for v in np.floor(ends.min(axis=0)))
+        x1, y1 = (int(v) + pad for v in np.ceil(ends.max(axis=0)))
+        x1, y1 = min(w, max(x1, x0 + 1)), min(h, max(y1, y0 + 1))
+        before, now, shift = self._grey[y0:y1, x0:x1], grey[y0:y1, x0:x1], np.float32([x0, y0])
+        p0 = (self.xy - shift).reshape(-1, 1, 2)
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(before, now, p0, (guess - shift).reshape(-1, 1, 2),
+                                             flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk)
+        pb, stb, _ = cv2.calcOpticalFlowPyrLK(now, before, p1, p0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk)
+        fb = np.linalg.norm((pb - p0).reshape(-1, 2), axis=1)
+        return p1.reshape(-1, 2) + shift, (st.ravel() == 1) & (stb.ravel() == 1) & (fb < self.fb_max_px)
+
+    def match(self, grey, mask, V_pred, faces, K, prepared):
+        """The points that stayed on the object: (face_ids (P,), bary (P, 3), xy (P, 2)).
+        prepared : what ``prepare`` returned for this frame."""
+        if self.bound is None or self._grey is None:
+            return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 2), np.float32)
+        xy, ok = prepared
+        ok = ok & on_mask(xy, mask)
         self.bound = BoundFeatures(self.bound.keypoints.subset(ok), self.bound.face_ids[ok], self.bound.bary[ok])
         self.xy = xy[ok]
         self._grey = grey

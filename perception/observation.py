@@ -79,10 +79,17 @@ def _ray_norms(fx: float, fy: float, cx: float, cy: float, w: int, h: int) -> np
     return np.sqrt(((uu - cx) / fx) ** 2 + ((vv - cy) / fy) ** 2 + 1.0).astype(np.float32)
 
 
-def observe(frame: RGBDFrame, mask: np.ndarray, window_px: int = 5, occlusion_margin_m: float = 0.03) -> Observation:
-    """Build the Observation of ``frame`` for the object ``mask`` (H, W) bool."""
+def grey_of(frame: RGBDFrame) -> np.ndarray:
+    """(H, W) uint8 grey image of the frame's colour."""
+    return cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
+
+
+def observe(frame: RGBDFrame, mask: np.ndarray, window_px: int = 5, occlusion_margin_m: float = 0.03,
+            grey: np.ndarray | None = None) -> Observation:
+    """Build the Observation of ``frame`` for the object ``mask`` (H, W) bool
+    (``grey``: the frame's grey image when the caller already made it)."""
     K = frame.camera.K
-    grey = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
+    grey = grey_of(frame) if grey is None else grey
     depth = smooth_depth_in_mask(frame.depth_m, mask, window_px)
     h, w = depth.shape
     rng = depth * _ray_norms(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), w, h)

@@ -20,10 +20,13 @@ from __future__ import annotations
 
 import logging
 import time
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
+from functools import lru_cache
 
 import cv2
 import numpy as np
+from threadpoolctl import ThreadpoolController
 
 from ipc.messages import MeshEstimate, RGBDFrame
 from perception.camera import Undistorter, pixel_index, project
@@ -31,12 +34,40 @@ from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, Smoot
 from perception.features import make_correspondences, resolve_kind
 from perception.initial_mesh import InitialisationError, mesh_from_mask, place_mesh
 from perception.mesh import CanonicalMesh, barycentric_matrix
-from perception.observation import Observation, observe
+from perception.observation import Observation, grey_of, observe
 from perception.raster import faces_mask
 from perception.segmentation import SegmentationConfig, find_object, segment_tracked
 from perception.solver import SemiImplicitSolver
 
 log = logging.getLogger(__name__)
+
+
+@lru_cache(maxsize=1)
+def _blas() -> ThreadpoolController:
+    return ThreadpoolController()
+
+
+def _one_blas_thread():
+    """A context in which BLAS runs on the calling thread only.
+
+    The tracker's dense products are small (a few hundred vertices): handing them to
+    BLAS worker threads costs more than it gives, and on a busy two-core machine the
+    workers' spinning took a third of the frame time (benchmarks/bench_tracker.py).
+    """
+    return _blas().limit(limits=1, user_api="blas")
+
+
+class _Done:
+    """A finished result with the two methods of a Future that the tracker uses."""
+
+    def __init__(self, value):
+        self._value = value
+
+    def result(self):
+        return self._value
+
+    def exception(self):
+        return None
 
 
 class TrackingError(ValueError):
@@ -53,12 +84,17 @@ class TrackerConfig:
     alpha : adaptation rate of the semi-implicit scheme (larger = smaller, safer steps)
     solver : "conjugate" (default) or "semi-implicit" (the paper's plain iteration); see perception.solver
     max_iterations : solver iterations per frame, shared by the outlier-rejection stages
+    cg_iterations : conjugate-gradient steps per solver iteration (conjugate solver)
     tolerance_m : stop when no vertex moves more than this in an iteration
+    min_predicted_decrease : stop when the next step is predicted to lower the energy by
+        less than this fraction of it (0: never; saves time on noisy data)
     features : "auto" (SURF if available, else SIFT), "surf", "sift", "orb" or "klt"
     max_features : features detected per frame
     match_gate_px : a match must lie within this distance of its predicted location
     match_keep_fraction : the paper keeps the best half of the matches
     match_previous_frame : also match the previous frame's features (bound through the estimate)
+    feature_thread : track or detect features on a second thread while the frame is segmented
+        (the same results either way; off keeps the tracker on one core)
     outlier_radii_m : inlier radius of each solver stage; a match farther from its mesh point is ignored
     depth_window_px : depth is averaged over this window on the object (noise)
     depth_outlier_m : depth residuals larger than this are ignored (occlusion, edges)
@@ -79,12 +115,15 @@ class TrackerConfig:
     alpha: float = 0.5
     solver: str = "conjugate"
     max_iterations: int = 10
+    cg_iterations: int = 8
     tolerance_m: float = 1e-4
+    min_predicted_decrease: float = 0.0
     features: str = "auto"
     max_features: int = 500
     match_gate_px: float = 40.0
     match_keep_fraction: float = 0.5
     match_previous_frame: bool = True
+    feature_thread: bool = True
     outlier_radii_m: tuple = (0.05, 0.02)
     depth_window_px: int = 5
     depth_outlier_m: float = 0.08
@@ -102,23 +141,26 @@ class TrackerConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a positive number, got {v!r}")
-        for name in ("lambda_c", "lambda_d", "lambda_b", "velocity_prediction"):
+        for name in ("lambda_c", "lambda_d", "lambda_b", "velocity_prediction", "min_predicted_decrease"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a non-negative number, got {v!r}")
         if not 0 < self.match_keep_fraction <= 1:
             raise ValueError(f"TrackerConfig.match_keep_fraction: expected (0, 1], got {self.match_keep_fraction}")
-        if int(self.max_iterations) < 1 or int(self.max_features) < 1 or int(self.depth_window_px) < 1:
-            raise ValueError("TrackerConfig: max_iterations, max_features and depth_window_px must be >= 1")
+        counts = ("max_iterations", "cg_iterations", "max_features", "depth_window_px")
+        for name in counts:
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"TrackerConfig.{name}: expected an integer >= 1, got {getattr(self, name)!r}")
         if not self.outlier_radii_m or any(not r > 0 for r in self.outlier_radii_m):
             raise ValueError(f"TrackerConfig.outlier_radii_m: expected positive radii, got {self.outlier_radii_m}")
         resolve_kind(self.features)
 
     @classmethod
     def realtime(cls, **overrides) -> "TrackerConfig":
-        """A preset for 30 Hz on two CPU cores: KLT points instead of descriptors, fewer iterations."""
-        base = dict(features="klt", max_features=300, max_iterations=6, outlier_radii_m=(0.04, 0.02),
-                    init_iterations=6)
+        """A preset for 30 Hz on two CPU cores: KLT points instead of descriptors, fewer and
+        shorter iterations that stop once a step is predicted to gain under 5 % of the energy."""
+        base = dict(features="klt", max_features=300, max_iterations=6, cg_iterations=4,
+                    min_predicted_decrease=0.05, outlier_radii_m=(0.04, 0.02), init_iterations=6)
         base.update(overrides)
         return cls(**base)
 
@@ -132,7 +174,13 @@ class MeshTracker:
     def __init__(self, config: TrackerConfig | None = None, rng: np.random.Generator | None = None):
         self.config = config if config is not None else TrackerConfig()
         self._rng = rng if rng is not None else np.random.default_rng(0)
+        self._executor: ThreadPoolExecutor | None = None
         self.reset()
+
+    def _worker(self) -> ThreadPoolExecutor:
+        if self._executor is None:
+            self._executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="tracker-features")
+        return self._executor
 
     # -- state ---------------------------------------------------------------------------
 
@@ -165,8 +213,8 @@ class MeshTracker:
         old = self.config
         self.config = config
         if self.initialised:
-            if (config.alpha, config.solver) != (old.alpha, old.solver):
-                self._solver = SemiImplicitSolver(self.mesh.stiffness(), config.alpha, config.solver)
+            if (config.alpha, config.solver, config.cg_iterations) != (old.alpha, old.solver, old.cg_iterations):
+                self._solver = self._make_solver(self.mesh)
             if (config.features, config.max_features) != (old.features, old.max_features):
                 log.warning("feature settings change at the next initialise")
 
@@ -196,7 +244,8 @@ class MeshTracker:
         """
         saved = dict(self.__dict__)
         try:
-            return self._initialise(frame, mask, mesh)
+            with _one_blas_thread():
+                return self._initialise(frame, mask, mesh)
         except Exception:
             self.__dict__.update(saved)
             raise
@@ -232,7 +281,7 @@ class MeshTracker:
             raise TrackingError("the object is too small for the mesh spacing")
         self.mesh = mesh
         self._camera = frame.camera
-        self._solver = SemiImplicitSolver(mesh.stiffness(), cfg.alpha, cfg.solver)
+        self._solver = self._make_solver(mesh)
         self._faces_out = self._orient_faces(mesh.faces, V0)
 
         boundary = self._boundary_term(obs, np.zeros(len(mesh.boundary)))
@@ -252,6 +301,10 @@ class MeshTracker:
         log.info("initialised mesh: %d vertices, %d faces, %d boundary, %d features", mesh.n_vertices,
                  len(mesh.faces), len(mesh.boundary), self._corr.n_model if self._corr else 0)
         return self._estimate(frame, V, res.energies, res.iterations, conf, t0)
+
+    def _make_solver(self, mesh: CanonicalMesh) -> SemiImplicitSolver:
+        cfg = self.config
+        return SemiImplicitSolver(mesh.stiffness(), cfg.alpha, cfg.solver, cg_iterations=cfg.cg_iterations)
 
     @staticmethod
     def _orient_faces(faces: np.ndarray, V: np.ndarray) -> np.ndarray:
@@ -291,6 +344,10 @@ class MeshTracker:
 
     def track(self, frame: RGBDFrame) -> MeshEstimate:
         """Estimate the mesh in a new frame. Raises TrackingError before ``initialise`` or on a bad frame."""
+        with _one_blas_thread():
+            return self._track(frame)
+
+    def _track(self, frame: RGBDFrame) -> MeshEstimate:
         t0 = time.perf_counter()
         if not self.initialised:
             raise TrackingError("track() called before initialise()")
@@ -302,6 +359,24 @@ class MeshTracker:
         h, w = frame.depth_m.shape
         uv = project(V_pred, K)
         pred_mask = faces_mask(uv, faces, (h, w))
+        grey = grey_of(frame)
+        prepared = None
+        if cfg.use_correspondence and self._corr is not None:
+            # Optical flow or feature detection needs no object mask: it runs on a second
+            # core while this thread segments the frame (OpenCV and NumPy release the GIL).
+            args = (grey, V_pred, faces, K, pred_mask)
+            prepared = self._worker().submit(self._corr.prepare, *args) if cfg.feature_thread \
+                else _Done(self._corr.prepare(*args))
+        try:
+            return self._solve_frame(frame, V_pred, pred_mask, grey, prepared, t0)
+        finally:
+            if prepared is not None:
+                prepared.exception()  # waits: the worker never uses the feature state after this frame
+
+    def _solve_frame(self, frame, V_pred, pred_mask, grey, prepared, t0) -> MeshEstimate:
+        cfg = self.config
+        K = frame.camera.K
+        faces = self.mesh.faces
         z = V_pred[:, 2]
         mask = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation)
         if not mask.any():
@@ -309,10 +384,10 @@ class MeshTracker:
             self._V_prev, self._V = self._V, self._V.copy()
             self.last_observation = None
             return self._estimate(frame, self._V, {}, 0, 0.0, t0, lost=True)
-        obs = observe(frame, mask, cfg.depth_window_px)
+        obs = observe(frame, mask, cfg.depth_window_px, grey=grey)
         corr = None
-        if cfg.use_correspondence and self._corr is not None:
-            fid, bary, xy = self._corr.match(obs.grey, self._feature_mask(mask), V_pred, faces, K)
+        if prepared is not None:
+            fid, bary, xy = self._corr.match(obs.grey, self._feature_mask(mask), V_pred, faces, K, prepared.result())
             pts, has = obs.points_at(xy)
             if has.any():
                 B = barycentric_matrix(fid[has], bary[has], faces, self.mesh.n_vertices)
@@ -325,7 +400,8 @@ class MeshTracker:
         for radius in stages:
             if radius is not None:
                 corr.weights = (corr.residuals(V) < radius).astype(np.float64)
-            res = self._solver.minimise(V, terms, budget, cfg.tolerance_m)
+            res = self._solver.minimise(V, terms, budget, cfg.tolerance_m,
+                                        min_predicted_decrease=cfg.min_predicted_decrease)
             V, energies = res.vertices, res.energies
             iterations += res.iterations
         if self._corr is not None:

@@ -154,6 +154,46 @@ def test_energy_non_increasing_over_iterations(tex, method):
     assert h[-1] < 0.5 * h[0]
 
 
+def test_single_precision_inverse_preconditions_like_the_sparse_factor(tex, monkeypatch):
+    import perception.solver as solver_module
+    tr = MeshTracker(TrackerConfig())
+    tr.initialise(render(plane_points(UV, CENTRE, SIZE), tex, 0))
+    K = tr.mesh.stiffness()
+    dense = SemiImplicitSolver(K, 0.5)
+    monkeypatch.setattr(solver_module, "DENSE_INVERSE_MAX", 0)
+    sparse = SemiImplicitSolver(K, 0.5)
+    R = np.random.default_rng(3).normal(size=(K.shape[0], 3))
+    a, b = dense._precondition(R), sparse._precondition(R)
+    assert a.dtype == np.float64 and a.shape == R.shape
+    assert np.abs(a - b).max() < 1e-5 * np.abs(b).max()
+    np.testing.assert_allclose((K + 0.5 * np.eye(K.shape[0])) @ b, R, atol=1e-9)
+
+
+def test_minimisation_stops_once_a_step_promises_too_little(tex):
+    frames, _ = bend_sequence(tex, n=2)
+    tr = MeshTracker(TrackerConfig(features="sift"))
+    tr.initialise(frames[0])
+    tr.track(frames[1])
+    terms = tr._data_terms(tr.last_observation, None)
+    V0 = tr.vertices + np.random.default_rng(1).normal(0, 0.01, tr.vertices.shape)
+    free = tr._solver.minimise(V0, terms, max_iterations=20, tolerance_m=1e-7)
+    stingy = tr._solver.minimise(V0, terms, max_iterations=20, tolerance_m=1e-7, min_predicted_decrease=0.05)
+    never = tr._solver.minimise(V0, terms, max_iterations=20, tolerance_m=1e-7, min_predicted_decrease=1.0)
+    assert 0 < stingy.iterations < free.iterations
+    # the steps it skipped were each predicted to gain under 5 % of the energy; together they gain little
+    assert stingy.history[-1] < 1.2 * free.history[-1]
+    assert never.iterations == 0 and np.array_equal(never.vertices, V0)  # no step can gain 100 %
+
+
+def test_feature_thread_changes_nothing_but_where_the_work_runs(tex):
+    frames, _ = bend_sequence(tex, n=5)
+    on = run(frames, TrackerConfig.realtime())
+    off = run(frames, TrackerConfig.realtime(feature_thread=False))
+    assert on[-1].energies["inliers"] > 20  # the points were tracked, on the worker thread
+    for a, b in zip(on, off):
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+
+
 def test_offline_mesh_of_known_size(tex):
     frames = [render(plane_points(UV, CENTRE, SIZE), tex, 0)]
     tr = MeshTracker(TrackerConfig())
