@@ -20,7 +20,7 @@ import threading
 
 from ipc import endpoints
 from ipc.transport import STALE_AFTER_S
-from launch_scripts.publish_frames import OneLineParser
+from launch_scripts.cli import OneLineParser
 from perception.features import FEATURE_KINDS
 from perception.service import PerceptionService, ServiceConfig
 from perception.track import config_from_args

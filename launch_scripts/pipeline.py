@@ -35,7 +35,7 @@ import time
 from ipc import endpoints
 from ipc.messages import MeshEstimate, StatusReply, StatusRequest
 from ipc.transport import RemoteError, RequestClient, RequestTimeout, Subscriber
-from launch_scripts.publish_frames import OneLineParser
+from launch_scripts.cli import OneLineParser
 
 FREE_PORT = "tcp://127.0.0.1:*"
 #: Seconds a child gets to bind its sockets (imports of NumPy, OpenCV, PyBullet included).

@@ -33,25 +33,9 @@ import numpy as np
 from grasping._planner import EDGE_APPROACHES, MODES, GraspPlannerConfig
 from grasping.service import PlannerService, run_planner_service
 from ipc import endpoints
+from launch_scripts.cli import OneLineParser, finite_float
 
 log = logging.getLogger("launch_scripts.planner_service")
-
-
-class _OneLineParser(argparse.ArgumentParser):
-    """argparse, but a usage error is one line on stderr and exit status 2."""
-
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
-def _finite(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
 
 
 def _endpoint(text: str) -> str:
@@ -61,7 +45,7 @@ def _endpoint(text: str) -> str:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = _OneLineParser(prog="python -m launch_scripts.planner_service", description=__doc__.split("\n\n")[0])
+    p = OneLineParser(prog="python -m launch_scripts.planner_service", description=__doc__.split("\n\n")[0])
     p.add_argument("--estimates", type=_endpoint, default=endpoints.ESTIMATES,
                    help=f"MeshEstimate publisher to connect to (default {endpoints.ESTIMATES})")
     p.add_argument("--bind", type=_endpoint, default=endpoints.PLANNER,
@@ -70,30 +54,30 @@ def build_parser() -> argparse.ArgumentParser:
                    help="RGBDFrame publisher to connect to for the visibility term (default: none)")
     p.add_argument("--kinds", nargs="+", choices=MODES, default=list(MODES),
                    help="grasp kinds served (default: all)")
-    p.add_argument("--max-estimate-age-s", type=_finite, default=None,
+    p.add_argument("--max-estimate-age-s", type=finite_float, default=None,
                    help="answer not_ready when the newest estimate is older than this (default: any age)")
     defaults = GraspPlannerConfig()
     p.add_argument("--edge-approach", choices=EDGE_APPROACHES, default=defaults.edge_approach,
                    help=f"corner and boundary approach (default {defaults.edge_approach})")
-    p.add_argument("--pinch-inset-m", type=_finite, default=defaults.pinch_inset_m,
+    p.add_argument("--pinch-inset-m", type=finite_float, default=defaults.pinch_inset_m,
                    help=f"how far inside the outline edge grasps close, metres (default {defaults.pinch_inset_m})")
-    p.add_argument("--T-world-cam", dest="T_world_cam", type=_finite, nargs=16, default=None, metavar="T",
+    p.add_argument("--T-world-cam", dest="T_world_cam", type=finite_float, nargs=16, default=None, metavar="T",
                    help="camera-to-world transform, 16 numbers row-major (default: world = camera frame)")
-    p.add_argument("--workspace-min", type=_finite, nargs=3, default=None, metavar=("X", "Y", "Z"),
+    p.add_argument("--workspace-min", type=finite_float, nargs=3, default=None, metavar=("X", "Y", "Z"),
                    help="lower corner of the reachable box, world frame, metres (default unbounded)")
-    p.add_argument("--workspace-max", type=_finite, nargs=3, default=None, metavar=("X", "Y", "Z"),
+    p.add_argument("--workspace-max", type=finite_float, nargs=3, default=None, metavar=("X", "Y", "Z"),
                    help="upper corner of the reachable box, world frame, metres (default unbounded)")
-    p.add_argument("--up", type=_finite, nargs=3, default=None, metavar=("X", "Y", "Z"),
+    p.add_argument("--up", type=finite_float, nargs=3, default=None, metavar=("X", "Y", "Z"),
                    help="up direction in the world frame (default z up with --T-world-cam, else image up)")
-    p.add_argument("--min-score", type=_finite, default=defaults.min_score, help="drop plans scoring lower (0-1)")
-    p.add_argument("--min-confidence", type=_finite, default=defaults.min_confidence,
+    p.add_argument("--min-score", type=finite_float, default=defaults.min_score, help="drop plans scoring lower (0-1)")
+    p.add_argument("--min-confidence", type=finite_float, default=defaults.min_confidence,
                    help="no plans on estimates less confident (0-1)")
-    p.add_argument("--opening-width-m", type=_finite, default=defaults.opening_width_m,
+    p.add_argument("--opening-width-m", type=finite_float, default=defaults.opening_width_m,
                    help=f"finger opening, metres (default {defaults.opening_width_m})")
-    p.add_argument("--outline-window-spacings", type=_finite, default=defaults.outline_window_spacings,
+    p.add_argument("--outline-window-spacings", type=finite_float, default=defaults.outline_window_spacings,
                    help="half-length of the chords measuring the outline's turn, in mesh spacings "
                         f"(default {defaults.outline_window_spacings:g}); features shorter than ~1.5 times it are not resolved")
-    p.add_argument("--corner-max-angle-deg", type=_finite, default=math.degrees(defaults.corner_max_angle_rad),
+    p.add_argument("--corner-max-angle-deg", type=finite_float, default=math.degrees(defaults.corner_max_angle_rad),
                    help=f"largest interior angle of a corner, degrees (default {math.degrees(defaults.corner_max_angle_rad):g})")
     p.add_argument("--print-endpoint", action="store_true",
                    help='print {"planner": ENDPOINT} as one JSON line on stdout once serving')

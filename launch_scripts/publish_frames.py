@@ -23,6 +23,7 @@ import threading
 
 from ipc import endpoints
 from ipc.transport import HEARTBEAT_PERIOD_S
+from launch_scripts.cli import OneLineParser, non_negative_float, positive_int
 from perception.sources import (
     KinectSource,
     Pacing,
@@ -35,34 +36,6 @@ from perception.sources import (
 )
 
 
-class OneLineParser(argparse.ArgumentParser):
-    """argparse, but a usage error is one line on stderr (no usage block) and exit status 2
-    (shared by the launch scripts of the perception pipeline)."""
-
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message}\n")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
-
-
-def _non_negative_float(text: str) -> float:
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not value >= 0:
-        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
     common = OneLineParser(add_help=False)
     g = common.add_argument_group("publishing")
@@ -73,8 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "rate: --rate-hz; fast: no wait (default for cameras, which pace themselves)")
     g.add_argument("--rate-hz", type=float, help="frames per second with --pacing rate")
     g.add_argument("--loop", action="store_true", help="start over at the end (files and sim)")
-    g.add_argument("--max-frames", type=_positive_int, help="stop after this many frames")
-    g.add_argument("--start-delay-s", type=_non_negative_float, default=0.5,
+    g.add_argument("--max-frames", type=positive_int, help="stop after this many frames")
+    g.add_argument("--start-delay-s", type=non_negative_float, default=0.5,
                    help="wait after binding so that waiting subscribers get the first frame (default 0.5)")
     g.add_argument("--heartbeat-period-s", type=float, default=HEARTBEAT_PERIOD_S,
                    help=f"seconds between heartbeats (default {HEARTBEAT_PERIOD_S:g})")
@@ -90,17 +63,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scene", default="poster_bend", help="registered scene name (default poster_bend)")
     p.add_argument("--seed", type=int, default=0, help="scene seed (default 0)")
     p.add_argument("--no-noise", action="store_true", help="render without sensor noise")
-    p.add_argument("--width", type=_positive_int, default=640)
-    p.add_argument("--height", type=_positive_int, default=480)
-    p.add_argument("--frames", type=_positive_int, default=60, help="frames per pass (default 60, the scenes' script)")
+    p.add_argument("--width", type=positive_int, default=640)
+    p.add_argument("--height", type=positive_int, default=480)
+    p.add_argument("--frames", type=positive_int, default=60, help="frames per pass (default 60, the scenes' script)")
 
     p = sub.add_parser("sequence", parents=[common], help="a recorded sequence folder")
     p.add_argument("path", help="sequence folder (rgb.txt, depth.txt, camera_intrinsic.json)")
 
     p = sub.add_parser("realsense", parents=[common], help="an Intel RealSense camera (pyrealsense2)")
-    p.add_argument("--width", type=_positive_int, default=640)
-    p.add_argument("--height", type=_positive_int, default=480)
-    p.add_argument("--fps", type=_positive_int, default=30)
+    p.add_argument("--width", type=positive_int, default=640)
+    p.add_argument("--height", type=positive_int, default=480)
+    p.add_argument("--fps", type=positive_int, default=30)
     p.add_argument("--serial", help="device serial number (default: the first camera)")
 
     p = sub.add_parser("kinect", parents=[common], help="an Azure Kinect (pyk4a)")

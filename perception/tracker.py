@@ -30,7 +30,7 @@ from threadpoolctl import ThreadpoolController
 
 from ipc.messages import MeshEstimate, RGBDFrame
 from perception.camera import Undistorter, pixel_index, project
-from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, SmoothnessTerm
+from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm
 from perception.features import make_correspondences, resolve_kind
 from perception.initial_mesh import InitialisationError, mesh_from_mask, place_mesh
 from perception.mesh import CanonicalMesh, barycentric_matrix

@@ -165,8 +165,11 @@ def test_never_heard_publisher_is_reported_stale(caplog):
 
 
 def test_stale_limit_follows_a_long_heartbeat_period():
-    with Publisher(ANY_PORT, source="slow", heartbeat_period_s=0.4) as pub, Subscriber(pub.endpoint, stale_after_s=0.2) as sub:
-        assert sub.stale_limit_s == 0.2
+    with Publisher(ANY_PORT, source="slow", heartbeat_period_s=0.4) as pub:
+        endpoint = pub.endpoint
+    with Subscriber(endpoint, stale_after_s=0.2) as alone:  # no heartbeat heard: the configured limit
+        assert alone.stale_limit_s == 0.2
+    with Publisher(endpoint, source="slow", heartbeat_period_s=0.4), Subscriber(endpoint, stale_after_s=0.2) as sub:
         assert wait_until(lambda: sub.last_heartbeat is not None, 3.0)
         assert sub.stale_limit_s == pytest.approx(1.2)
         time.sleep(1.0)  # more than two heartbeat periods, each longer than stale_after_s

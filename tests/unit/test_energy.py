@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
 from perception.camera import backproject, project
 from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, SmoothnessTerm
