@@ -6,12 +6,14 @@ The paper's iteration (eq. 32-37) solves
 
 with smoothness implicit and data terms explicit. ``K + alpha I`` is constant for a mesh,
 so it is factored once and every iteration is a back-substitution for the three
-coordinate columns at once. For meshes of up to ``DENSE_INVERSE_MAX`` vertices the
-factor is replaced by the explicit inverse in single precision: one (N, N) @ (N, 3)
-product on 4-byte numbers is about three times as fast as SuperLU's triangular solves at
-500 vertices (the product is bound by memory traffic, which halving the width halves),
-and a preconditioner needs no more than single precision. It costs at most 16 MB. Its step ``-(K + alpha I)^{-1} grad Psi`` is a gradient step
+coordinate columns at once. Its step ``-(K + alpha I)^{-1} grad Psi`` is a gradient step
 preconditioned by that matrix.
+
+For meshes of up to ``DENSE_INVERSE_MAX`` vertices the factor is replaced by the explicit
+inverse in single precision: one (N, N) @ (N, 3) product on 4-byte numbers is about three
+times as fast as SuperLU's triangular solves at 500 vertices (the product is bound by
+memory traffic, which the narrower numbers halve), and single precision is plenty for a
+preconditioner. It takes at most 16 MB.
 
 Two methods share the factorisation:
 
