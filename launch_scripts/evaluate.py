@@ -78,7 +78,9 @@ def markdown(results: dict, args) -> str:
         name, noise = key.rsplit("/", 1)
         cells = [("n/a" if r.get(label) is None else f"{r[label]['surface_mean_mm']:.1f}") for label in labels]
         lines.append(f"| {name} | {noise} | " + " | ".join(cells) + " |")
-    lines += ["", "Median tracking time per frame (ms):", "",
+    load = "/".join(f"{x:.2f}" for x in os.getloadavg())
+    lines += ["", f"Median tracking time per frame (ms). Load average (1/5/15 min) when the run ended: {load}; "
+              "other jobs slow every column alike. `benchmarks/bench_tracker.py` measures speed on its own.", "",
               "| scene | noise | " + " | ".join(labels) + " |",
               "| --- | --- | " + " | ".join("---" for _ in labels) + " |"]
     for key, r in results.items():
