@@ -3,10 +3,13 @@
 The selection core is pure NumPy/SciPy: it takes ``ipc.messages.MeshEstimate``
 (and optionally the ``RGBDFrame`` it came from) and returns ``GraspPlan``
 messages. Corners and boundary points come from the geometry of the canonical
-(rest) mesh, never from fixed vertex ids.
+(rest) mesh, never from fixed vertex ids. A cloth hanging from one point is grasped
+at its lowest point instead (``lowest_point_grasp``, on the observed points).
 """
 
+from grasping._hanging import lowest_point_grasp
 from grasping._outline import find_corners
 from grasping._planner import GraspPlanner, GraspPlannerConfig, GraspResult, GraspTerms, plan_grasps
 
-__all__ = ["GraspPlanner", "GraspPlannerConfig", "GraspResult", "GraspTerms", "find_corners", "plan_grasps"]
+__all__ = ["GraspPlanner", "GraspPlannerConfig", "GraspResult", "GraspTerms", "find_corners", "lowest_point_grasp",
+           "plan_grasps"]

@@ -1,40 +1,46 @@
 """Laundry-grasping trials in simulation, end to end through the ZeroMQ services.
 
     python -m launch_scripts.trials --seeds S [S ...] --json REPORT.json
-        [--mode corner|boundary|highest] [--workers N] [--engine local|ray]
-        [--pictures DIR] [--markdown SUMMARY.md] [--frames N] [--log-dir DIR] [--quiet]
+        [--mode corner|boundary|highest] [--state STATE] [--cloth KIND] [--workers N]
+        [--engine local|ray] [--pictures DIR] [--markdown SUMMARY.md] [--frames N] [--log-dir DIR] [--quiet]
 
 Each seed is one trial (``launch_scripts.trial_runner.trial.run_trial``): a towel or
 T-shirt on a table (or held up by a corner), drawn from the seed; its frames go through
 a perception service process and a planner service process on free loopback ports;
-the best plan is executed in the simulation and judged by ground truth. A seed is an
-integer or a range START:STOP[:STEP] (Python's). Even seeds are for development, odd
-seeds are kept for evaluation.
+the plan the controller chooses is executed in the simulation and judged by ground
+truth. A seed is an integer or a range START:STOP[:STEP] (Python's). Even seeds are for
+development, odd seeds are kept for evaluation. ``--state`` and ``--cloth`` force the
+initial state (flat, crumpled, folded, held) or the cloth kind (towel, tshirt) of every
+seed; the rest of each scene is still drawn from its seed.
 
-Trials run in a local process pool (``--workers``, default 1; each trial also runs two
-service processes) or on a local Ray instance (``--engine ray``, needs ``ray``). Outputs:
-REPORT.json (``success_rate``, ``wilson_95``, ``summary`` and the ``trials``, each with
-at least ``seed`` and ``success``), optionally a markdown summary and a picture per trial
-(the plan on the frame, the closed fingers, the lifted cloth), and the logs of the
-services and of the trial workers (``--log-dir``, default ``logs/`` beside REPORT.json). Exit status 0 when every trial ran
-(whether its grasp succeeded or not), 1 when a trial could not run, 2 for bad arguments
-(one line on stderr).
+Trials run in local processes, one per trial, ``--workers`` at a time (default 1; each
+trial also runs two service processes; a trial whose process dies is recorded as
+failed, "error: WorkerDied: ...", and the others go on), or on a local Ray instance
+(``--engine ray``, needs ``ray``). Outputs: REPORT.json (``success_rate``,
+``wilson_95``, ``summary`` and the ``trials``, each with at least ``seed`` and
+``success``), optionally a markdown summary and a picture per trial (the plan on the
+frame, the closed fingers, the lifted cloth), and the logs of the services and of the
+trial processes (``--log-dir``, default ``logs/`` beside REPORT.json). Exit status 0
+when every trial ran (whether its grasp succeeded or not), 1 when a trial could not run,
+2 for bad arguments (one line on stderr).
 """
 
 from __future__ import annotations
 
 import argparse
-import concurrent.futures
 import logging
 import multiprocessing
+import multiprocessing.connection
 import os
 import shlex
+import signal
 import sys
 import time
 from pathlib import Path
 
 from tqdm import tqdm
 
+from launch_scripts.cli import OneLineParser, positive_int
 from launch_scripts.trial_runner.judge import MODES
 from launch_scripts.trial_runner.report import markdown, report, write_json
 from launch_scripts.trial_runner.trial import (
@@ -43,15 +49,9 @@ from launch_scripts.trial_runner.trial import (
     scene_record,
     trial_config_dict,
 )
+from sim.laundry import CLOTH_KINDS, INITIAL_STATES
 
 log = logging.getLogger("launch_scripts.trials")
-
-
-class _OneLineParser(argparse.ArgumentParser):
-    """argparse, but a usage error is one line on stderr and exit status 2."""
-
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message}\n")
 
 
 def _seeds(text: str) -> list[int]:
@@ -71,28 +71,22 @@ def _seeds(text: str) -> list[int]:
     return seeds
 
 
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
-
-
 def build_parser() -> argparse.ArgumentParser:
-    p = _OneLineParser(prog="python -m launch_scripts.trials", description=__doc__.split("\n\n")[0])
+    p = OneLineParser(prog="python -m launch_scripts.trials", description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=_seeds, nargs="+", required=True, metavar="S",
                    help="seeds (integers, or START:STOP[:STEP]); even for development, odd for evaluation")
     p.add_argument("--json", type=Path, required=True, metavar="REPORT.json", help="where to write the report")
     p.add_argument("--mode", choices=MODES, default="corner", help="grasp kind to request (default corner)")
-    p.add_argument("--workers", type=_positive_int, default=1, help="trials run at once (default 1)")
+    p.add_argument("--state", choices=INITIAL_STATES,
+                   help="force this initial state in every scene (default: drawn from the seed)")
+    p.add_argument("--cloth", choices=CLOTH_KINDS,
+                   help="force this cloth kind in every scene (default: drawn from the seed)")
+    p.add_argument("--workers", type=positive_int, default=1, help="trials run at once (default 1)")
     p.add_argument("--engine", choices=("local", "ray"), default="local",
-                   help="local process pool (default) or a local Ray instance (needs ray)")
+                   help="local processes (default) or a local Ray instance (needs ray)")
     p.add_argument("--pictures", type=Path, metavar="DIR", help="write a picture of each trial there")
     p.add_argument("--markdown", type=Path, metavar="SUMMARY.md", help="write a markdown summary there")
-    p.add_argument("--frames", type=_positive_int, default=TrialConfig().observe_frames,
+    p.add_argument("--frames", type=positive_int, default=TrialConfig().observe_frames,
                    help=f"frames observed before planning, the first initialises (default {TrialConfig().observe_frames})")
     p.add_argument("--log-dir", type=Path, metavar="DIR", help="services' logs (default: logs/ beside REPORT.json)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -106,9 +100,9 @@ def _lost(seed: int, config: TrialConfig, failure: str) -> dict:
 
 
 def _worker_output_to(path: str) -> None:
-    """Pool worker initializer: the worker's stdout and stderr (PyBullet's banner, warnings
-    of failed trials, which their records also hold) go to a file, so the console shows
-    only the progress bar and the summary."""
+    """In a trial's process: its stdout and stderr (PyBullet's banner, warnings of failed
+    trials, which their records also hold) go to a file, so the console shows only the
+    progress bar and the summary."""
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
     os.dup2(fd, 1)
@@ -117,22 +111,88 @@ def _worker_output_to(path: str) -> None:
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(process)d %(levelname)s %(name)s: %(message)s")
 
 
-def _run_local(seeds: list[int], config: TrialConfig, workers: int, progress) -> list[dict]:
+def _trial_process(connection, trial, seed: int, config: TrialConfig, output: str) -> None:
+    """The body of a trial's process: run it and send its record to the runner."""
+    _worker_output_to(output)
+    connection.send(trial(seed, config))
+    connection.close()
+
+
+def _how_it_ended(exitcode: int | None) -> str:
+    """'exit status N' or 'signal NAME' of a process that ended."""
+    if exitcode is not None and exitcode < 0:
+        try:
+            return f"signal {signal.Signals(-exitcode).name}"
+        except ValueError:
+            return f"signal {-exitcode}"
+    return f"exit status {exitcode}"
+
+
+def _run_local(seeds: list[int], config: TrialConfig, workers: int, progress, trial=run_trial) -> list[dict]:
+    """Each trial in a process of its own, ``workers`` at a time; returns their records.
+
+    A process that ends without sending its record (killed, out of memory, a crash in
+    native code) gives its seed a record whose failure is "error: WorkerDied: ...", and
+    the other trials go on. ``trial(seed, config) -> record`` is ``run_trial`` (tests
+    pass another).
+    """
     # spawn: each trial starts in a fresh interpreter (PyBullet and ZeroMQ state never
     # cross a fork), and one process per trial returns its memory when it ends.
     context = multiprocessing.get_context("spawn")
-    records = []
-    workers_log = str(Path(config.log_dir) / "workers.log") if config.log_dir else os.devnull
-    with concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=context, max_tasks_per_child=1,
-                                                initializer=_worker_output_to, initargs=(workers_log,)) as pool:
-        futures = {pool.submit(run_trial, seed, config): seed for seed in seeds}
-        for future in concurrent.futures.as_completed(futures):
-            seed = futures[future]
-            try:
-                records.append(future.result())
-            except concurrent.futures.process.BrokenProcessPool as e:  # a worker died (killed, out of memory)
-                records.append(_lost(seed, config, f"error: BrokenProcessPool: {e}"))
-            progress(records[-1])
+    output = str(Path(config.log_dir) / "workers.log") if config.log_dir else os.devnull
+    queue, running, records = list(seeds), {}, []
+    try:
+        while queue or running:
+            while queue and len(running) < workers:
+                seed = queue.pop(0)
+                receive, send = context.Pipe(duplex=False)
+                process = context.Process(target=_trial_process, args=(send, trial, seed, config, output), daemon=True,
+                                          name=f"trial seed {seed}")
+                process.start()
+                send.close()  # only the child writes; its end closes when the child ends
+                running[seed] = {"process": process, "connection": receive, "record": None}
+            waitables = {}
+            for seed, job in running.items():
+                waitables[job["process"].sentinel] = seed
+                if job["connection"] is not None:
+                    waitables[job["connection"]] = seed
+            for ready in multiprocessing.connection.wait(list(waitables)):
+                seed = waitables[ready]
+                job = running.get(seed)
+                if job is None:
+                    continue
+                if ready is job["connection"]:  # read the record as soon as it comes: a full pipe would block the child
+                    try:
+                        job["record"] = job["connection"].recv()
+                    except (EOFError, OSError):  # the child ended without sending
+                        pass
+                    job["connection"].close()
+                    job["connection"] = None
+                    continue
+                process = job["process"]
+                process.join()
+                if job["connection"] is not None:  # ended: a record it sent is in the pipe, or nothing is
+                    if job["connection"].poll():
+                        try:
+                            job["record"] = job["connection"].recv()
+                        except (EOFError, OSError):
+                            pass
+                    job["connection"].close()
+                record = job["record"]
+                if record is None:
+                    ending = _how_it_ended(process.exitcode)
+                    log.warning("seed %d: the trial's process ended with %s before it reported", seed, ending)
+                    record = _lost(seed, config, f"error: WorkerDied: the trial's process ended with {ending}")
+                del running[seed]
+                records.append(record)
+                progress(record)
+    finally:
+        for job in running.values():  # interrupted: stop the trials still running
+            job["process"].terminate()
+        for job in running.values():
+            job["process"].join(timeout=10)
+            if job["process"].is_alive():
+                job["process"].kill()
     return records
 
 
@@ -171,8 +231,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--json {args.json} is a directory")
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     log_dir = args.log_dir if args.log_dir is not None else args.json.parent / "logs"
+    scene_options = {k: v for k, v in (("state", args.state), ("cloth_kind", args.cloth)) if v is not None}
     config = TrialConfig(mode=args.mode, observe_frames=args.frames, log_dir=str(log_dir),
-                         pictures_dir=None if args.pictures is None else str(args.pictures))
+                         pictures_dir=None if args.pictures is None else str(args.pictures),
+                         scene_options=scene_options)
     command = "python -m launch_scripts.trials " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
 
     bar = tqdm(total=len(seeds), desc=f"{args.mode} trials", unit="trial", disable=args.quiet)

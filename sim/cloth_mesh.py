@@ -341,8 +341,13 @@ def tshirt_mesh(shape: TShirtShape | None = None, spacing_m: float = 0.03) -> Cl
     uv = np.concatenate([border, lattice[keep]])
 
     tri = Delaunay(uv).simplices
+    # Delaunay leaves slivers of no area between collinear outline points; a sliver's
+    # centroid lies on the outline, so the inside test keeps some of them. They hold no
+    # cloth and make a fold in the outline (PyBullet's loadSoftBody can hang on them):
+    # drop them. A true triangle of this lattice has an area of about 0.43 spacing^2.
+    area = np.abs(_signed_areas(uv, tri))
     centroids = uv[tri].mean(axis=1)
-    faces = tri[points_in_polygon(centroids, outline)].astype(np.int64)
+    faces = tri[points_in_polygon(centroids, outline) & (area > 1e-6 * spacing_m**2)].astype(np.int64)
     flip = _signed_areas(uv, faces) > 0
     faces[flip] = faces[flip][:, [0, 2, 1]]
     used, faces = np.unique(faces, return_inverse=True)

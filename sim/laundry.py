@@ -16,7 +16,8 @@ What a seed draws (``laundry_spec``):
   fold: the part of the cloth beyond a random row or column of its vertices is turned
   over before the drop), or ``held`` (hanging from a holder that clamps one true
   corner, its lowest point above the table; the holder is a visible box around that
-  corner, which it hides as a hand would);
+  corner, which it hides as a hand would; the cloth falls into its folds for 5 s and is
+  then brought to rest, as air drag, which PyBullet lacks, would do);
 - table: top 0.70-0.78 m above the floor, 1.2 m x 0.8 m, neutral grey;
 - camera: 1.0-1.3 m from the cloth, 50-70 degrees above the horizontal, azimuth within
   20 degrees of the table's front (-y), aim jittered by a few centimetres; Kinect-like
@@ -172,6 +173,9 @@ class LaundrySpec:
     table_top_z : float metres; boxes : the floor and the table (``sim.scenes.Box``)
     camera : CameraInfo; T_world_cam : (4, 4) float64, optical camera frame to world
     settle_s : simulated seconds the cloth falls and settles before frame 0
+    rest_s : simulated seconds after ``settle_s`` in which the cloth is brought to rest
+        (``ClothPhysics.settle_to_rest``): a hanging cloth, which PyBullet would leave
+        swinging (no air drag); 0 for a cloth on the table, which friction stops
     """
 
     seed: int
@@ -192,6 +196,7 @@ class LaundrySpec:
     camera: CameraInfo
     T_world_cam: np.ndarray
     settle_s: float
+    rest_s: float = 0.0
     timestep_s: float = 1.0 / 240.0
     lighting: Lighting = field(default_factory=Lighting)
 
@@ -209,22 +214,6 @@ class LaundrySpec:
         w, h = self.cloth.size_m
         texture = "printed" if self.printed else "plain"
         return f"seed {self.seed}: {texture} {self.cloth_kind} {w:.2f}x{h:.2f} m, {self.state}"
-
-
-def _without_slivers(mesh: ClothMesh, min_area_m2: float = 1e-9) -> ClothMesh:
-    """The mesh without its zero-area faces.
-
-    ``tshirt_mesh`` can leave Delaunay slivers between collinear outline points, and
-    PyBullet's ``loadSoftBody`` never returns on some of them (e.g. seed 92's shirt).
-    Faces of no area hold no cloth, so dropping them changes nothing else.
-    """
-    uv, f = mesh.uv_m, mesh.faces
-    d1, d2 = uv[f[:, 1]] - uv[f[:, 0]], uv[f[:, 2]] - uv[f[:, 0]]
-    keep = 0.5 * np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) >= min_area_m2
-    if keep.all():
-        return mesh
-    log.debug("%s: dropped %d zero-area faces", mesh.name, int(np.sum(~keep)))
-    return ClothMesh(uv, f[keep], mesh.landmarks, mesh.name)
 
 
 def _rotation(axis: np.ndarray, angle_rad: float) -> np.ndarray:
@@ -329,7 +318,7 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
         material = ClothMaterial(mass_per_area_kg_m2=0.3)
     else:
         shape = TShirtShape().scaled(0.60 + 0.25 * size_draw[0])
-        mesh = _without_slivers(tshirt_mesh(shape, spacing_m=CLOTH_SPACING_M))
+        mesh = tshirt_mesh(shape, spacing_m=CLOTH_SPACING_M)
         corners_uv, names = tshirt_corners_uv(shape)
         material = ClothMaterial(mass_per_area_kg_m2=0.18)
     texture = _texture(mesh, rng, printed)
@@ -342,7 +331,7 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
     )
 
     yaw = rng.uniform(0.0, 2.0 * np.pi)
-    holder_vertex, holder_position = None, None
+    holder_vertex, holder_position, rest_s = None, None, 0.0
     target = np.array([0.0, 0.0, table_top])
     if state == "flat":
         tilt = _rotation(np.array([np.cos(yaw), np.sin(yaw), 0.0]), np.radians(rng.uniform(-4.0, 4.0)))
@@ -378,14 +367,16 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
         verts = np.array([0.0, 0.0, top]) + uv[:, :1] * side[None] - uv[:, 1:2] * np.array([[0.0, 0.0, 1.0]])
         holder_position = verts[holder_vertex].copy()
         target = np.array([0.0, 0.0, top - 0.5 * hang])
-        # PyBullet cloth has no air drag: a hanging cloth swings for seconds before it calms.
-        settle_s = 5.0
+        # PyBullet cloth has no air drag: a hanging cloth still swings at 0.1-0.4 m/s after
+        # 5 s. It falls into its folds freely, then is brought to rest as air would do.
+        settle_s, rest_s = 5.0, 2.0
     T_world_cam = _camera_pose(rng, target)
     return LaundrySpec(
         seed=seed, cloth_kind=kind, cloth=mesh, printed=printed, texture_rgb=texture, material=material,
         corners_uv=corners_uv, corner_names=names, outline_edges=boundary_edges(mesh), state=state,
         cloth_vertices_world=verts, holder_vertex=holder_vertex, holder_position=holder_position,
         table_top_z=float(table_top), boxes=boxes, camera=camera, T_world_cam=T_world_cam, settle_s=settle_s,
+        rest_s=rest_s,
     )
 
 
@@ -399,7 +390,8 @@ class LaundryScene:
     noise : add sensor noise to rendered frames (its random stream comes from the seed)
     noise_model : DepthNoiseModel, Kinect-like by default
 
-    After construction the cloth has settled for ``spec.settle_s``; ``step(dt)`` advances
+    After construction the cloth has settled for ``spec.settle_s`` (and been brought to
+    rest for ``spec.rest_s``); ``step(dt)`` advances
     the world, ``render()`` returns what the sensor sees now, ``render_empty()`` the same
     view without the cloth (a reference picture of the empty table), and the accessors
     below give the ground truth. Use as a context manager or call ``close()``.
@@ -426,6 +418,8 @@ class LaundryScene:
                 self.holder.close_on(self.physics.nodes_near(spec.holder_position, HOLDER_RADIUS_M))
             self.virtual_camera = VirtualCamera(self.camera, self.T_world_cam, lighting=spec.lighting)
             self.physics.advance(spec.settle_s)
+            if spec.rest_s > 0:
+                self.physics.settle_to_rest(spec.rest_s)
         except Exception:
             self.close()
             raise

@@ -346,6 +346,48 @@ class ClothPhysics:
         self.grippers.append(gripper)
         return gripper
 
+    def stop_cloth(self) -> None:
+        """Set the velocity of every cloth node to zero; positions and anchors stay.
+
+        PyBullet's ``resetBaseVelocity`` on a soft body sets each node's velocity to the
+        given angular velocity about the centre of mass plus the mean velocity, and then
+        shifts them all by the change of the mean (``btSoftBody::setAngularVelocity`` and
+        ``setLinearVelocity``): with both zero, every node stops.
+        """
+        if self.cloth_id is None:
+            raise ValueError("stop_cloth: no cloth in this world (call add_cloth first)")
+        self.pybullet.resetBaseVelocity(self.cloth_id, [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=self.client)
+
+    def settle_to_rest(self, duration_s: float) -> int:
+        """Step for ``duration_s`` (whole steps) with kinetic damping; returns how often the cloth was stopped.
+
+        PyBullet's cloth has no air drag and damps its springs only along them, so a cloth
+        hanging in the air swings and flaps for tens of seconds, where a real one comes to
+        rest in a second or two. Kinetic damping (dynamic relaxation) brings it to the
+        static equilibrium near its current shape: the cloth moves freely, and whenever
+        its kinetic energy (equal node masses) stops growing, every node is stopped
+        (``stop_cloth``). Grippers hold still (pending ``move_to`` targets wait for the next
+        ``advance``). Use it for a scene's settling, not during a task: it is no physics.
+        """
+        n = round(float(duration_s) / self.timestep_s)
+        if n < 0:
+            raise ValueError(f"settle_to_rest: expected a non-negative duration, got {duration_s}")
+        p = self.pybullet
+        previous = self.cloth_vertices()
+        energy_before, stops = 0.0, 0
+        for _ in range(n):
+            p.stepSimulation(physicsClientId=self.client)
+            now = self.cloth_vertices()
+            energy = float(np.sum((now - previous) ** 2))
+            previous = now
+            if energy < energy_before:  # past a peak of the kinetic energy
+                self.stop_cloth()
+                stops, energy = stops + 1, 0.0
+            energy_before = energy
+        self.time_s += n * self.timestep_s
+        log.debug("cloth settled to rest in %.2f s (stopped %d times)", n * self.timestep_s, stops)
+        return stops
+
     def advance(self, duration_s: float) -> None:
         """Step the world for ``duration_s`` (rounded to whole steps), moving each gripper
         along a straight line to its ``move_to`` target, reached on the last step."""

@@ -18,10 +18,11 @@ from launch_scripts.trial_runner.judge import (
 )
 from launch_scripts.trial_runner.trial import (
     TrialConfig,
+    View,
     best_candidate,
-    lowest_when_held,
+    lowest_point_when_held,
     run_trial,
 )
 
-__all__ = ["TOLERANCE_M", "Judgement", "TrialConfig", "best_candidate", "judge", "lowest_when_held", "run_trial",
-           "wilson_interval"]
+__all__ = ["TOLERANCE_M", "Judgement", "TrialConfig", "View", "best_candidate", "judge", "lowest_point_when_held",
+           "run_trial", "wilson_interval"]

@@ -27,12 +27,25 @@ def _pixels(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
     return np.nan_to_num(uv, nan=-1e4).round().astype(np.int64).clip(-10000, 10000)
 
 
+def outlined_text(rgb: np.ndarray, text: str, origin: tuple[int, int], scale: float = 0.55) -> None:
+    """Draw white text with a black outline into ``rgb`` (H, W, 3) uint8, in place.
+
+    The outline is the same text drawn black one pixel to each side: OpenCV advances each
+    letter by the stroke thickness too, so a thicker black copy under the white one would
+    drift right along the line and show as a second, offset label.
+    """
+    x, y = origin
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            if dx or dy:
+                cv2.putText(rgb, text, (x + dx, y + dy), cv2.FONT_HERSHEY_SIMPLEX, scale, BLACK, 1, cv2.LINE_AA)
+    cv2.putText(rgb, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, WHITE, 1, cv2.LINE_AA)
+
+
 def caption(rgb: np.ndarray, text: str, row: int = 0) -> np.ndarray:
     """A copy of ``rgb`` with one line of text at the bottom-left (row 0 lowest)."""
     out = np.ascontiguousarray(rgb.copy())
-    y = out.shape[0] - 10 - 22 * row
-    cv2.putText(out, text, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.55, BLACK, 3, cv2.LINE_AA)
-    cv2.putText(out, text, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.55, WHITE, 1, cv2.LINE_AA)
+    outlined_text(out, text, (8, out.shape[0] - 10 - 22 * row))
     return out
 
 

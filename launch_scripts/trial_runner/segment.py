@@ -4,7 +4,8 @@ Depth cannot separate a cloth lying on a table from the table (it is a few milli
 thick, under the sensor's noise), so the tracker's depth segmentation finds nothing
 there. A robot that knows its workspace has a picture of it empty; the cloth is what
 differs from it in colour, or lies nearer the camera than the empty surface by more
-than the noise. Pure OpenCV on arrays.
+than the noise. ``cloth_points`` turns the mask into the cloth's measured 3D points.
+Pure OpenCV on arrays.
 """
 
 from __future__ import annotations
@@ -49,3 +50,29 @@ def mask_from_reference(frame: RGBDFrame, reference: RGBDFrame, colour_tol: floa
     padded = np.pad(region, 1)
     cv2.floodFill(padded, None, (0, 0), 2)  # everything reachable from outside the region
     return padded[1:-1, 1:-1] != 2
+
+
+def cloth_points(frame: RGBDFrame, mask: np.ndarray, reference: RGBDFrame, depth_tol_m: float = 0.02) -> np.ndarray:
+    """(N, 3) float64 metres, camera frame: the measured points of the cloth in ``mask``.
+
+    frame, reference : RGBDFrame of the same pinhole camera (its distortion, if any, is
+        not undone), with and without the cloth
+    mask : (H, W) bool, the cloth (``mask_from_reference``)
+    depth_tol_m : only pixels nearer than the reference by more than this are kept: the
+        mask is found by colour and its holes are filled, so it also holds the table seen
+        through a gap between two layers or beside a thin edge, and a pixel whose depth is
+        the table's is no point of the cloth. So this is for a cloth off the table (held
+        up); on the table it leaves only the cloth's folds and layers.
+    Pixels without depth (0 or NaN) here or in the reference are skipped; N may be 0.
+    """
+    mask = np.asarray(mask, dtype=bool)
+    if mask.shape != frame.depth_m.shape or reference.depth_m.shape != frame.depth_m.shape:
+        raise ValueError(f"cloth_points: mask {mask.shape}, depth {frame.depth_m.shape} and reference depth "
+                         f"{reference.depth_m.shape} differ in size")
+    d, r = frame.depth_m, reference.depth_m
+    with np.errstate(invalid="ignore"):
+        nearer = np.isfinite(d) & (d > 0) & np.isfinite(r) & (r > 0) & (d < r - depth_tol_m)
+    rows, cols = np.nonzero(mask & nearer)
+    z = d[rows, cols].astype(np.float64)
+    K = frame.camera.K
+    return np.column_stack([(cols - K[0, 2]) / K[0, 0] * z, (rows - K[1, 2]) / K[1, 1] * z, z])

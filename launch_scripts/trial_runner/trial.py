@@ -14,9 +14,10 @@ loopback ports; find the cloth against a picture of the empty table
 the perception service to initialise on it; publish ``observe_frames`` frames one at a
 time, each after the estimate of the previous one arrived (republished with back-off
 until it does, so a slow joiner or a loaded machine only delays the trial); request a
-plan of the configured mode; execute the candidate the controller chooses (the
-planner's best; the lowest one when the cloth is held up, ``lowest_when_held``) with
-``sim.grasp_execution``; judge it (``judge.judge``). Children are stopped on every exit path and every wait is bounded.
+plan of the configured mode; execute the plan the controller chooses (the planner's
+best; when the robot holds the cloth up, the lowest point of the cloth it sees,
+``lowest_point_when_held``) with ``sim.grasp_execution``; judge it (``judge.judge``).
+Children are stopped on every exit path and every wait is bounded.
 
 The record (a JSON-ready dict) holds at least ``seed`` and ``success``; see ``run_trial``.
 """
@@ -35,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from grasping import lowest_point_grasp
 from ipc.messages import (
     GraspPlan,
     GraspPlanReply,
@@ -52,7 +54,7 @@ from launch_scripts.trial_runner.pictures import (
     strip,
 )
 from launch_scripts.trial_runner.processes import ChildError, Children
-from launch_scripts.trial_runner.segment import mask_from_reference
+from launch_scripts.trial_runner.segment import cloth_points, mask_from_reference
 from sim.grasp_execution import ExecutionConfig, execute_grasp
 from sim.ground_truth import error_summary, vertex_errors
 
@@ -120,24 +122,43 @@ class TrialConfig:
             raise ValueError(f"Expected max_candidates in [1, {GraspRequest.MAX_CANDIDATES}], got {self.max_candidates}")
 
 
-def best_candidate(reply: GraspPlanReply, scene) -> GraspPlan:
-    """The planner's best candidate."""
-    return reply.candidates[0]
+@dataclass(frozen=True)
+class View:
+    """What the controller sees when it chooses a plan.
+
+    frame : RGBDFrame, the last frame shown to the perception service (the plan's)
+    reference : RGBDFrame, the robot's picture of its empty workspace (same camera)
+    cloth_mask : (H, W) bool, the cloth in ``frame``, found against ``reference``
+    """
+
+    frame: object
+    reference: object
+    cloth_mask: np.ndarray
 
 
-def lowest_when_held(reply: GraspPlanReply, scene) -> GraspPlan:
-    """The controller's choice (default): the planner's best, but the lowest candidate when
-    the robot holds the cloth up by a corner.
+def best_candidate(reply: GraspPlanReply, scene, view: View) -> GraspPlan | None:
+    """The planner's best candidate (None when it has none)."""
+    return reply.candidates[0] if reply.candidates else None
+
+
+def lowest_point_when_held(reply: GraspPlanReply, scene, view: View) -> GraspPlan | None:
+    """The controller's choice (default): the planner's best, but the lowest point of the
+    cloth when the robot holds it up (``grasping.lowest_point_grasp``).
 
     A cloth hanging from one point has a corner at its lowest point (the opposite corner
-    of a towel; a hem corner or sleeve end of a shirt), while the turns of its outline
-    near the hand are where the cloth narrows towards it, not corners; a robot that holds
-    the cloth knows it does. Heights are world z (``scene.T_world_cam``).
+    of a towel; a hem corner or sleeve end of a shirt); a robot that holds the cloth knows
+    it does. The lowest point is taken from the cloth's measured points in the last frame
+    (``segment.cloth_points``), not from the mesh: the mesh, laid over the first frame,
+    covers a hanging cloth unevenly and often stops short of its tip. World frame:
+    ``scene.T_world_cam``, z up.
     """
     if getattr(scene, "holder", None) is None:
-        return reply.candidates[0]
-    R, t = scene.T_world_cam[:3, :3], scene.T_world_cam[:3, 3]
-    return min(reply.candidates, key=lambda plan: float((R @ plan.position + t)[2]))
+        return best_candidate(reply, scene, view)
+    points = cloth_points(view.frame, view.cloth_mask, view.reference)
+    if len(points) < 3:
+        return best_candidate(reply, scene, view)
+    return lowest_point_grasp(points, scene.T_world_cam, frame_id=view.frame.camera.frame_id,
+                              timestamp_s=view.frame.timestamp_s)
 
 
 def _workspace_args(scene) -> list[str]:
@@ -231,19 +252,22 @@ def _wide_view(scene):
 
 
 def run_trial(seed: int, config: TrialConfig | None = None,
-              choose_plan: Callable[[GraspPlanReply, object], GraspPlan] = lowest_when_held) -> dict:
+              choose_plan: Callable[[GraspPlanReply, object, View], GraspPlan | None] = lowest_point_when_held) -> dict:
     """Run one trial (see the module docstring) and return its record.
 
     seed : int >= 0; the scene, its noise and so the whole trial follow from it
     config : TrialConfig, defaults when None
-    choose_plan : (reply, scene) -> the GraspPlan to execute; default ``lowest_when_held``
+    choose_plan : (reply, scene, view) -> the GraspPlan to execute, or None for none;
+        default ``lowest_point_when_held``; ``view`` is a ``View`` of the last frame
 
     The record (JSON-ready): ``seed``, ``mode``, ``success``, ``corner_success``,
     ``failure`` ("" on success, else one line; "error: ..." when the trial could not
     run), ``scene`` (cloth kind, size, printed, initial state), ``corner_error_m`` and
     ``nearest_corner`` (name), ``boundary_error_m``, ``grasped_uv`` [u, v] metres,
     ``plan`` (the executed plan in the camera frame; ``rank`` 0 for the planner's best,
-    None for a plan not among the candidates), ``n_candidates``,
+    None for a plan not among the candidates, such as the lowest point of a held cloth;
+    ``chosen_by`` the controller's name),
+    ``n_candidates``,
     ``tracking_error_mm`` (mean and p95 of the estimate planned on, DESIGN metric),
     ``confidence``, ``lifted_clear``, ``lowest_clearance_m``, ``held_nodes``,
     ``timing`` (``init_ms`` and median ``tracking_ms`` from the tracker, ``planning_ms``
@@ -328,15 +352,15 @@ def _observe_plan_execute(scene, link: _Link, config: TrialConfig, choose_plan, 
         record["tracking_error_mm"] = {"mean": round(summary["mean_mm"], 2), "p95": round(summary["p95_mm"], 2)}
         record["confidence"] = round(estimates[planned_on].confidence, 3)
     record["n_candidates"] = len(reply.candidates)
-    if not reply.candidates:
+    plan = choose_plan(reply, scene, View(frames[last], reference, mask_from_reference(frames[last], reference)))
+    if plan is None:
         record["failure"] = f"no {config.mode} grasp found on estimate {planned_on}"
         return
-
-    plan = choose_plan(reply, scene)
     record["plan"] = {"kind": plan.kind, "position_cam": [round(float(v), 4) for v in plan.position],
                       "approach_cam": [round(float(v), 4) for v in plan.approach], "score": round(plan.score, 4),
                       "vertex_id": plan.vertex_id, "estimate_seq": planned_on,
-                      "rank": next((i for i, c in enumerate(reply.candidates) if c is plan), None)}
+                      "rank": next((i for i, c in enumerate(reply.candidates) if c is plan), None),
+                      "chosen_by": getattr(choose_plan, "__name__", str(choose_plan))}
     panels = []
     if config.pictures_dir is not None:
         panels.append(_plan_panel(scene, frames[last], reply, plan, estimates.get(planned_on), truth[last]))

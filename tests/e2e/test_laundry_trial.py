@@ -67,7 +67,7 @@ def test_the_readme_trial_through_the_command_line(tmp_path):
 
 
 def test_a_grasp_at_the_cloth_centre_is_judged_a_failure(tmp_path):
-    def at_the_centre(reply, scene):
+    def at_the_centre(reply, scene, view):
         """A plan straight down onto the cloth's middle: a deliberately bad corner grasp."""
         centre = np.argmin(np.linalg.norm(scene.uv_m - scene.uv_m.mean(axis=0), axis=1))
         R_cam_gripper = np.linalg.inv(scene.T_world_cam)[:3, :3] @ DOWN

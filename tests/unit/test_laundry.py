@@ -166,3 +166,22 @@ def test_flat_towel_settles_on_the_table_and_renders_the_same_twice():
         corners = first.corners_world()
         assert corners.shape == (4, 3)
         assert np.allclose(corners[:, 2], spec.table_top_z, atol=0.02)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("cloth_kind", ["towel", "tshirt"])
+def test_a_held_cloth_is_at_rest_when_the_frames_begin_with_a_corner_lowest(cloth_kind):
+    from sim.laundry import LaundryScene
+
+    pytest.importorskip("pybullet")
+    spec = laundry_spec(6, state="held", cloth_kind=cloth_kind)
+    assert spec.rest_s > 0 and laundry_spec(6, state="flat").rest_s == 0
+    with LaundryScene(spec, noise=False) as scene:
+        before = scene.cloth_vertices_world()
+        for _ in range(6):  # the frames of a trial, 1/30 s apart
+            scene.step()
+        after = scene.cloth_vertices_world()
+        assert np.abs(after - before).max() < 0.002  # without air drag it would still swing at 0.1-0.4 m/s
+        assert np.all(scene.clearance_above_support() > 0.04)  # hanging clear of the table
+        lowest = np.argmin(after[:, 2])
+        assert min(np.linalg.norm(scene.uv_m[scene.corner_vertices()] - scene.uv_m[lowest], axis=1)) < 0.01

@@ -66,6 +66,14 @@ def test_tshirt_mesh_follows_its_outline():
     assert left[1] < 0.1 and right[1] < 0.1
 
 
+@pytest.mark.parametrize("scale", np.linspace(0.6, 0.85, 6))
+def test_tshirt_mesh_has_no_slivers_along_its_outline(scale):
+    # Delaunay makes zero-area triangles between collinear outline points; they must be gone
+    spacing = 0.03
+    mesh = tshirt_mesh(TShirtShape().scaled(scale), spacing_m=spacing)
+    assert np.abs(_signed_areas(mesh.uv_m, mesh.faces)).min() > 0.1 * spacing**2
+
+
 def test_tshirt_scaled_keeps_angle():
     shape = TShirtShape().scaled(1.1)
     assert shape.body_width_m == pytest.approx(0.55)

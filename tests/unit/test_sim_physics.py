@@ -48,6 +48,44 @@ def test_hanging_cloth_barely_stretches_and_settles(kind):
         assert 1.5 - after[:, 2].min() == pytest.approx(mesh.size_m[1], rel=0.1)
 
 
+def _hang_by_one_corner():
+    mesh = rectangle_mesh(0.4, 0.3, spacing_m=0.03)
+    physics, _ = _hang(mesh, ("top_left",), 1.5)
+    return physics
+
+
+def _largest_move(physics, seconds):
+    before = physics.cloth_vertices()
+    physics.advance(seconds)
+    return np.abs(physics.cloth_vertices() - before).max()
+
+
+@pytest.mark.slow
+def test_settle_to_rest_stops_a_cloth_that_would_swing_on():
+    with _hang_by_one_corner() as physics:  # without air drag, it still swings
+        physics.advance(1.5)
+        assert _largest_move(physics, 0.1) > 0.01
+    with _hang_by_one_corner() as physics:
+        z_held = physics.grippers[0].position[2]
+        assert physics.settle_to_rest(1.5) > 0
+        assert physics.time_s == pytest.approx(3.0)
+        assert _largest_move(physics, 0.1) < 0.001
+        assert _largest_move(physics, 0.5) < 0.001  # at rest, not between two swings
+        # it rests hanging down from the corner, as far as its diagonal reaches
+        assert z_held - physics.cloth_vertices()[:, 2].min() == pytest.approx(0.5, rel=0.1)
+
+
+def test_stop_cloth_stops_every_node():
+    with _hang_by_one_corner() as physics:
+        assert _largest_move(physics, 1 / 240) > 0.002  # swinging: millimetres a step
+        physics.stop_cloth()
+        assert _largest_move(physics, 1 / 240) < 0.0005  # from rest, one step of gravity and springs
+        with pytest.raises(ValueError, match="non-negative duration"):
+            physics.settle_to_rest(-1.0)
+    with ClothPhysics() as empty, pytest.raises(ValueError, match="no cloth"):
+        empty.stop_cloth()
+
+
 def test_loaded_nodes_keep_the_mesh_order():
     mesh = rectangle_mesh(0.2, 0.1, spacing_m=0.05)
     verts = mesh.layout_points([0.0, 0.0, 1.0], right=[0, 1, 0], down=[0, 0, -1])

@@ -189,3 +189,56 @@ def test_trials_seed_ranges():
 
     args = build_parser().parse_args(["--seeds", "0:10:2", "7", "--json", "r.json"])
     assert sorted({s for group in args.seeds for s in group}) == [0, 2, 4, 6, 7, 8]
+
+
+def test_trials_state_and_cloth_options_force_the_scene():
+    from launch_scripts.trials import build_parser
+
+    args = build_parser().parse_args(["--seeds", "0", "--json", "r.json", "--state", "held", "--cloth", "towel"])
+    assert (args.state, args.cloth) == ("held", "towel")
+    assert build_parser().parse_args(["--seeds", "0", "--json", "r.json"]).state is None
+
+
+# ----------------------------------------------------------------------------- local runner
+
+
+def fake_trial(seed, config):
+    """A stand-in for run_trial in the runner's processes: seed 1 dies without reporting,
+    seed 2 reports a record larger than a pipe's buffer."""
+    import os
+    import signal
+
+    if seed == 1:
+        os.kill(os.getpid(), signal.SIGKILL)
+    return {"seed": seed, "mode": config.mode, "success": True, "failure": "", "payload": "x" * (200_000 if seed == 2 else 1)}
+
+
+def test_a_trial_process_that_dies_is_a_failed_record_and_the_others_run(tmp_path):
+    from launch_scripts.trial_runner import TrialConfig
+    from launch_scripts.trials import _run_local
+
+    seen = []
+    config = TrialConfig(log_dir=str(tmp_path), scene_options={"state": "flat"})
+    records = _run_local([0, 1, 2, 3], config, workers=2, progress=seen.append, trial=fake_trial)
+    by_seed = {r["seed"]: r for r in records}
+    assert sorted(by_seed) == [0, 1, 2, 3] and len(seen) == 4
+    assert by_seed[1]["success"] is False
+    assert by_seed[1]["failure"] == "error: WorkerDied: the trial's process ended with signal SIGKILL"
+    assert by_seed[1]["scene"]["state"] == "flat"
+    assert failure_kind(by_seed[1]["failure"]) == "error: WorkerDied"
+    assert all(by_seed[s]["success"] for s in (0, 2, 3))
+    assert len(by_seed[2]["payload"]) == 200_000
+
+
+# ----------------------------------------------------------------------------- pictures
+
+
+def test_a_caption_is_one_label_its_outline_does_not_drift_from_its_text():
+    from launch_scripts.trial_runner.pictures import caption
+
+    img = caption(np.full((60, 700, 3), 128, np.uint8), "corner plan (red), other candidates (orange), true corners (green)")
+    grey = img[..., 0].astype(int)
+    white_cols = np.flatnonzero((grey > 230).any(axis=0))
+    dark_cols = np.flatnonzero((grey < 30).any(axis=0))
+    assert white_cols.size and dark_cols.size
+    assert dark_cols.min() >= white_cols.min() - 2 and dark_cols.max() <= white_cols.max() + 2

@@ -1,0 +1,119 @@
+"""Grasping a cloth that hangs from one point: at its lowest point.
+
+A cloth held up by one point hangs with a corner lowest: gravity pulls the material
+farthest below the hand straight down, and that is where the cloth ends (a towel held
+by a corner hangs along its diagonal, the opposite corner lowest; a shirt held by a hem
+corner or a cuff hangs with another hem corner or cuff lowest). Laundry robots grasp a
+hanging garment there (Osawa et al. 2007; Maitin-Shepard et al. 2010).
+
+Data form: the observed points of the cloth, (N, 3) float64 metres in the camera's
+optical frame (e.g. the depth pixels inside the cloth's mask, back-projected), and
+``T_world_cam`` (4, 4), camera frame to a world frame in which ``up_world`` is up. The
+points, not a tracked mesh: a mesh laid over a hanging cloth from one view covers what
+was seen at its first frame, and the lowest point is often at its ragged edge.
+
+Output: a ``GraspPlan`` of kind "corner" in the camera frame, following the gripper
+convention of ``grasping`` (z = approach, x = closing): the gripper comes up from
+below, its fingers closing across the cloth (along the horizontal part of the cloth's
+normal at the tip), the fingertips ``inset_m`` above the lowest point so that they
+close on cloth.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from grasping._checks import check_points, check_transform, check_vector
+from grasping._geometry import gripper_matrices, quaternion_xyzw_from_matrix
+from ipc.messages import GraspPlan
+
+log = logging.getLogger(__name__)
+
+
+def _positive(name: str, value) -> float:
+    value = float(value)
+    if not (np.isfinite(value) and value > 0):
+        raise ValueError(f"Expected {name} > 0, got {value}")
+    return value
+
+
+def lowest_point_grasp(points_cam, T_world_cam, up_world=(0.0, 0.0, 1.0), min_neighbours: int = 5,
+                       support_radius_m: float = 0.01, inset_m: float = 0.005, neighbourhood_m: float = 0.04,
+                       opening_width_m: float = 0.04, frame_id: str = "camera_color_optical_frame",
+                       timestamp_s: float = 0.0) -> GraspPlan:
+    """A grasp at the lowest point of a hanging cloth (see the module docstring).
+
+    Parameters
+    ----------
+    points_cam : (N, 3) float, metres, camera frame: observed points of the cloth, N >= 3
+    T_world_cam : (4, 4) float, rigid transform, camera frame to world frame
+    up_world : (3,) float, the up direction in the world frame (normalised here)
+    min_neighbours : int >= 0, the lowest point is the lowest one with at least this many
+        other points within ``support_radius_m`` (metres, > 0), so that a few stray points
+        below the cloth do not count
+    inset_m : float > 0, metres: the fingertips close this far above the lowest point (a
+        depth sensor loses the last centimetre or so of a thin edge seen from above, so
+        the lowest measured point is already that far inside the cloth)
+    neighbourhood_m : float > 0, metres: the cloth's plane at the tip is fitted to the
+        points this close to the lowest point; it sets the closing direction
+    opening_width_m : float > 0, finger opening before closing, metres
+    frame_id, timestamp_s : copied into the plan
+
+    Returns
+    -------
+    GraspPlan, kind "corner", camera frame: ``position`` (3,) metres, ``approach`` =
+    up (in the camera frame), ``quat_xyzw`` of ``R_cam_gripper`` with x (closing) the
+    horizontal part of the tip's normal, or the horizontal viewing direction where the
+    cloth at the tip lies flat; ``score`` 1, ``vertex_id`` -1 (no mesh vertex)
+
+    Raises
+    ------
+    ValueError : malformed points or transform, fewer than 3 points, no point with
+        ``min_neighbours`` neighbours, bad parameters
+    """
+    points = check_points("points_cam", points_cam)
+    if len(points) < 3:
+        raise ValueError(f"Expected points_cam with at least 3 points, got {len(points)}")
+    T = check_transform("T_world_cam", T_world_cam)
+    up_cam = T[:3, :3].T @ check_vector("up_world", up_world, unit=True)
+    if isinstance(min_neighbours, bool) or int(min_neighbours) != min_neighbours or min_neighbours < 0:
+        raise ValueError(f"Expected min_neighbours an integer >= 0, got {min_neighbours}")
+    support_radius_m = _positive("support_radius_m", support_radius_m)
+    inset_m = _positive("inset_m", inset_m)
+    neighbourhood_m = _positive("neighbourhood_m", neighbourhood_m)
+    opening_width_m = _positive("opening_width_m", opening_width_m)
+
+    height = points @ up_cam  # height differences are the same in both frames
+    tree = cKDTree(points)
+    tip = None
+    for k in np.argsort(height, kind="stable"):
+        if len(tree.query_ball_point(points[k], support_radius_m)) > min_neighbours:  # the point itself counts too
+            tip = points[k]
+            break
+    if tip is None:
+        raise ValueError(f"Expected a cloth: no point of {len(points)} has {min_neighbours} others within "
+                         f"{support_radius_m} m")
+
+    # Closing direction: across the cloth at its tip, i.e. the horizontal part of the
+    # normal of the plane through the nearby points; where that is too short (the cloth
+    # lies flat there, or too few points), across the line of sight.
+    near = points[np.linalg.norm(points - tip, axis=1) <= neighbourhood_m]
+    closing = np.zeros(3)
+    if len(near) >= 3:
+        _, singular, vt = np.linalg.svd(near - near.mean(axis=0), full_matrices=False)
+        if singular[1] > 1e-9:
+            closing = vt[2] - (vt[2] @ up_cam) * up_cam
+    if np.linalg.norm(closing) < 0.3:
+        closing = tip - (tip @ up_cam) * up_cam  # the ray to the tip (camera at the origin), made horizontal
+    if np.linalg.norm(closing) < 1e-9:  # looking straight down at the tip
+        closing = np.array([1.0, 0.0, 0.0]) - up_cam[0] * up_cam
+    closing = closing / np.linalg.norm(closing)
+
+    R = gripper_matrices(up_cam[None], closing[None])
+    log.debug("lowest point of %d cloth points at %s (camera frame)", len(points), np.round(tip, 3).tolist())
+    return GraspPlan(position=tip + inset_m * up_cam, approach=R[0][:, 2], quat_xyzw=quaternion_xyzw_from_matrix(R)[0],
+                     opening_width_m=opening_width_m, score=1.0, vertex_id=-1, kind="corner", frame_id=frame_id,
+                     timestamp_s=timestamp_s)
