@@ -161,6 +161,13 @@ def lowest_point_when_held(reply: GraspPlanReply, scene, view: View) -> GraspPla
                               timestamp_s=view.frame.timestamp_s)
 
 
+def default_controller(mode: str) -> Callable[[GraspPlanReply, object, View], GraspPlan | None]:
+    """The controller's choice for a grasp mode: ``lowest_point_when_held`` for corner and
+    boundary grasps, ``best_candidate`` for the highest-point baseline, which takes the
+    planner's highest point whatever the cloth's state."""
+    return best_candidate if mode == "highest" else lowest_point_when_held
+
+
 def _workspace_args(scene) -> list[str]:
     """The reachable box of the trial's robot, world frame: over the table, up to 1.5 m above it."""
     hx, hy = scene.spec.table_half_xy
@@ -252,13 +259,13 @@ def _wide_view(scene):
 
 
 def run_trial(seed: int, config: TrialConfig | None = None,
-              choose_plan: Callable[[GraspPlanReply, object, View], GraspPlan | None] = lowest_point_when_held) -> dict:
+              choose_plan: Callable[[GraspPlanReply, object, View], GraspPlan | None] | None = None) -> dict:
     """Run one trial (see the module docstring) and return its record.
 
     seed : int >= 0; the scene, its noise and so the whole trial follow from it
     config : TrialConfig, defaults when None
     choose_plan : (reply, scene, view) -> the GraspPlan to execute, or None for none;
-        default ``lowest_point_when_held``; ``view`` is a ``View`` of the last frame
+        ``view`` is a ``View`` of the last frame; None for ``default_controller(config.mode)``
 
     The record (JSON-ready): ``seed``, ``mode``, ``success``, ``corner_success``,
     ``failure`` ("" on success, else one line; "error: ..." when the trial could not
@@ -280,6 +287,7 @@ def run_trial(seed: int, config: TrialConfig | None = None,
     from sim.laundry import LaundryScene, laundry_spec
 
     config = config if config is not None else TrialConfig()
+    choose_plan = choose_plan if choose_plan is not None else default_controller(config.mode)
     start = time.perf_counter()
     record = {"seed": int(seed), "mode": config.mode, "success": False, "corner_success": False, "failure": ""}
     with contextlib.ExitStack() as stack:

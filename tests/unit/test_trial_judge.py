@@ -242,3 +242,11 @@ def test_a_caption_is_one_label_its_outline_does_not_drift_from_its_text():
     dark_cols = np.flatnonzero((grey < 30).any(axis=0))
     assert white_cols.size and dark_cols.size
     assert dark_cols.min() >= white_cols.min() - 2 and dark_cols.max() <= white_cols.max() + 2
+
+
+def test_the_baseline_executes_the_planners_highest_point_even_for_a_held_cloth():
+    from launch_scripts.trial_runner.trial import best_candidate, default_controller, lowest_point_when_held
+
+    assert default_controller("highest") is best_candidate
+    assert default_controller("corner") is lowest_point_when_held
+    assert default_controller("boundary") is lowest_point_when_held
