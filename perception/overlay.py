@@ -27,9 +27,23 @@ def draw_mesh(rgb: np.ndarray, estimate: MeshEstimate, K: np.ndarray, thickness:
         if np.isfinite(u) and np.isfinite(v):
             cv2.circle(out, (int(round(u)), int(round(v))), 2, (40, 90, 255), -1, cv2.LINE_AA)
     text = f"#{estimate.seq}  conf {estimate.confidence:.2f}{'  LOST' if estimate.lost else ''}  {estimate.timing_ms:.0f} ms"
-    cv2.putText(out, text, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 3, cv2.LINE_AA)
-    cv2.putText(out, text, (8, 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA)
+    outlined_text(out, text, (8, 20))
     return out
+
+
+def outlined_text(rgb: np.ndarray, text: str, origin: tuple[int, int], scale: float = 0.55) -> None:
+    """Draw white text with a black outline into ``rgb`` (H, W, 3) uint8, in place.
+
+    The outline is the same text drawn black one pixel to each side: OpenCV advances each
+    letter by the stroke thickness too, so a thicker black copy under the white one would
+    drift right along the line and show as a second, offset label.
+    """
+    x, y = origin
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            if dx or dy:
+                cv2.putText(rgb, text, (x + dx, y + dy), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(rgb, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), 1, cv2.LINE_AA)
 
 
 def ply_bytes(vertices: np.ndarray, faces: np.ndarray) -> bytes:

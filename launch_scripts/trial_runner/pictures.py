@@ -14,9 +14,9 @@ import cv2
 import numpy as np
 
 from ipc.messages import GraspPlan, MeshEstimate
-from perception.overlay import draw_mesh
+from perception.overlay import draw_mesh, outlined_text
 
-GREEN, ORANGE, RED, WHITE, BLACK = (40, 200, 60), (255, 150, 0), (230, 20, 20), (255, 255, 255), (0, 0, 0)
+GREEN, ORANGE, RED = (40, 200, 60), (255, 150, 0), (230, 20, 20)
 
 
 def _pixels(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -25,21 +25,6 @@ def _pixels(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
     z = np.where(p[:, 2] > 1e-6, p[:, 2], np.nan)
     uv = np.column_stack([K[0, 0] * p[:, 0] / z + K[0, 2], K[1, 1] * p[:, 1] / z + K[1, 2]])
     return np.nan_to_num(uv, nan=-1e4).round().astype(np.int64).clip(-10000, 10000)
-
-
-def outlined_text(rgb: np.ndarray, text: str, origin: tuple[int, int], scale: float = 0.55) -> None:
-    """Draw white text with a black outline into ``rgb`` (H, W, 3) uint8, in place.
-
-    The outline is the same text drawn black one pixel to each side: OpenCV advances each
-    letter by the stroke thickness too, so a thicker black copy under the white one would
-    drift right along the line and show as a second, offset label.
-    """
-    x, y = origin
-    for dx in (-1, 0, 1):
-        for dy in (-1, 0, 1):
-            if dx or dy:
-                cv2.putText(rgb, text, (x + dx, y + dy), cv2.FONT_HERSHEY_SIMPLEX, scale, BLACK, 1, cv2.LINE_AA)
-    cv2.putText(rgb, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, WHITE, 1, cv2.LINE_AA)
 
 
 def caption(rgb: np.ndarray, text: str, row: int = 0) -> np.ndarray:
