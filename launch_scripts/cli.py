@@ -1,9 +1,12 @@
-"""What every launch script's command line shares: one-line usage errors and checked numbers."""
+"""What every launch script shares: one-line usage errors, checked numbers, and stopping on a signal."""
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
+import signal
+import threading
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -42,3 +45,30 @@ def non_negative_float(text: str) -> float:
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
     return value
+
+
+def stop_on_signals(stop: threading.Event, signals=(signal.SIGINT, signal.SIGTERM)) -> None:
+    """Set ``stop`` when one of ``signals`` arrives. Call from the main thread.
+
+    A Python signal handler runs in the main thread between two bytecodes, possibly while
+    that thread holds ``stop``'s lock inside ``Event.wait``, or inside an earlier handler's
+    ``stop.set()`` (a child whose parent dies can get its parent-death SIGTERM more than
+    once). A handler calling ``stop.set()`` then deadlocks. So the handlers do nothing, and
+    Python's C-level handler writes each signal's number to a wakeup pipe
+    (``signal.set_wakeup_fd``); a daemon thread reads it and sets ``stop``.
+    """
+    wanted = {int(sig) for sig in signals}
+    read_fd, write_fd = os.pipe()
+    os.set_blocking(write_fd, False)
+    for sig in signals:
+        signal.signal(sig, lambda *_: None)  # a Python handler, so the signal no longer kills the process
+    signal.set_wakeup_fd(write_fd, warn_on_full_buffer=False)
+
+    def watch() -> None:
+        while True:
+            received = os.read(read_fd, 64)
+            if not received or wanted.intersection(received):
+                stop.set()
+                return
+
+    threading.Thread(target=watch, name="stop on signal", daemon=True).start()

@@ -14,13 +14,12 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import signal
 import sys
 import threading
 
 from ipc import endpoints
 from ipc.transport import STALE_AFTER_S
-from launch_scripts.cli import OneLineParser
+from launch_scripts.cli import OneLineParser, stop_on_signals
 from perception.features import FEATURE_KINDS
 from perception.service import PerceptionService, ServiceConfig
 from perception.track import config_from_args
@@ -67,8 +66,7 @@ def main(argv=None) -> int:
     level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop_on_signals(stop)
     viewer = "spawn" if args.viewer else args.viewer_save
     try:
         config = ServiceConfig(frames=args.frames, estimates=args.estimates, control=args.control,

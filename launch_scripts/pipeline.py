@@ -35,7 +35,7 @@ import time
 from ipc import endpoints
 from ipc.messages import MeshEstimate, StatusReply, StatusRequest
 from ipc.transport import RemoteError, RequestClient, RequestTimeout, Subscriber
-from launch_scripts.cli import OneLineParser
+from launch_scripts.cli import OneLineParser, stop_on_signals
 
 FREE_PORT = "tcp://127.0.0.1:*"
 #: Seconds a child gets to bind its sockets (imports of NumPy, OpenCV, PyBullet included).
@@ -144,7 +144,7 @@ def main(argv=None) -> int:
     if not args.source:
         build_parser().error("a SOURCE is required (sim, sequence, realsense, kinect or rosbag)")
     stop = threading.Event()
-    signal.signal(signal.SIGTERM, lambda *_: stop.set())
+    stop_on_signals(stop, (signal.SIGTERM,))
     ports = {"frames": endpoints.FRAMES, "estimates": endpoints.ESTIMATES, "control": endpoints.PERCEPTION_CONTROL}
     if not args.default_endpoints:
         ports = dict.fromkeys(ports, FREE_PORT)

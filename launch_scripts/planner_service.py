@@ -24,7 +24,6 @@ import argparse
 import json
 import logging
 import math
-import signal
 import sys
 import threading
 
@@ -33,7 +32,7 @@ import numpy as np
 from grasping._planner import EDGE_APPROACHES, MODES, GraspPlannerConfig
 from grasping.service import PlannerService, run_planner_service
 from ipc import endpoints
-from launch_scripts.cli import OneLineParser, finite_float
+from launch_scripts.cli import OneLineParser, finite_float, stop_on_signals
 
 log = logging.getLogger("launch_scripts.planner_service")
 
@@ -114,8 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
 
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop_on_signals(stop)
 
     def announce(endpoint: str) -> None:
         if args.print_endpoint:

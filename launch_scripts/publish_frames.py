@@ -17,13 +17,12 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import signal
 import sys
 import threading
 
 from ipc import endpoints
 from ipc.transport import HEARTBEAT_PERIOD_S
-from launch_scripts.cli import OneLineParser, non_negative_float, positive_int
+from launch_scripts.cli import OneLineParser, non_negative_float, positive_int, stop_on_signals
 from perception.sources import (
     KinectSource,
     Pacing,
@@ -110,8 +109,7 @@ def main(argv=None) -> int:
     level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)]
     logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop_on_signals(stop)
 
     def bound(endpoint: str) -> None:
         if args.print_endpoint:
