@@ -484,6 +484,29 @@ class LaundryScene:
         image = self.virtual_camera.render_rigid(self.physics)
         return self._frame(image.rgb, image.depth_m)
 
+    def render_turned(self, angle_rad: float) -> tuple[RGBDFrame, RGBDFrame, np.ndarray]:
+        """What the sensor sees once the holder has turned a held cloth by ``angle_rad``
+        about the vertical through the holder: (frame, the same view without the cloth,
+        T_world_cam of that view).
+
+        A cloth at rest that hangs from one point keeps its shape when the point turns it
+        about the vertical, so turning the cloth is rendered as turning the camera the
+        other way about that axis; the cloth's points seen in the frame are then where the
+        cloth hangs now, through the returned T_world_cam. Noise as in ``render``.
+        Raises ValueError for a scene whose cloth is not held.
+        """
+        if self.holder is None:
+            raise ValueError("render_turned: the cloth is not held (state 'held' only)")
+        turn = np.eye(4)
+        turn[:3, :3] = _rotation(np.array([0.0, 0.0, 1.0]), -float(angle_rad))
+        axis = np.array([*self.spec.holder_position[:2], 0.0])
+        turn[:3, 3] = axis - turn[:3, :3] @ axis
+        T_world_cam = turn @ self.T_world_cam
+        camera = VirtualCamera(self.camera, T_world_cam, lighting=self.spec.lighting)
+        seen, empty = camera.render(self.physics, self.spec.texture_rgb), camera.render_rigid(self.physics)
+        frame, reference = self._frame(seen.rgb, seen.depth_m), self._frame(empty.rgb, empty.depth_m)
+        return frame, reference, T_world_cam
+
     def cloth_mask(self) -> np.ndarray:
         """(H, W) bool, where the last ``render()`` saw the cloth (exact, before noise)."""
         if self._last_mask is None:

@@ -15,7 +15,7 @@ the perception service to initialise on it; publish ``observe_frames`` frames on
 time, each after the estimate of the previous one arrived (republished with back-off
 until it does, so a slow joiner or a loaded machine only delays the trial); request a
 plan of the configured mode; execute the plan the controller chooses (the planner's
-best; when the robot holds the cloth up, the lowest point of the cloth it sees,
+best; when the robot holds the cloth up, the lowest point of the cloth it sees from four sides,
 ``lowest_point_when_held``) with ``sim.grasp_execution``; judge it (``judge.judge``).
 Children are stopped on every exit path and every wait is bounded.
 
@@ -122,6 +122,10 @@ class TrialConfig:
             raise ValueError(f"Expected max_candidates in [1, {GraspRequest.MAX_CANDIDATES}], got {self.max_candidates}")
 
 
+#: Turns of a held cloth, after the first look, before its lowest point is chosen.
+TURNS_RAD = (0.5 * np.pi, np.pi, 1.5 * np.pi)
+
+
 @dataclass(frozen=True)
 class View:
     """What the controller sees when it chooses a plan.
@@ -147,17 +151,26 @@ def lowest_point_when_held(reply: GraspPlanReply, scene, view: View) -> GraspPla
 
     A cloth hanging from one point has a corner at its lowest point (the opposite corner
     of a towel; a hem corner or sleeve end of a shirt); a robot that holds the cloth knows
-    it does. The lowest point is taken from the cloth's measured points in the last frame
-    (``segment.cloth_points``), not from the mesh: the mesh, laid over the first frame,
-    covers a hanging cloth unevenly and often stops short of its tip. World frame:
-    ``scene.T_world_cam``, z up.
+    it does. The lowest point is taken from the cloth's measured points, not from the
+    mesh: the mesh, laid over the first frame, covers a hanging cloth unevenly and often
+    stops short of its tip. From one view the tip is often hidden, behind a nearer layer
+    or seen edge-on where the sensor loses depth, so the robot turns the held cloth a
+    quarter turn at a time and looks again (``TURNS_RAD``, ``scene.render_turned``),
+    pooling the points of the last frame and of the three turned views in the world frame
+    (``scene.T_world_cam``, z up).
     """
     if getattr(scene, "holder", None) is None:
         return best_candidate(reply, scene, view)
-    points = cloth_points(view.frame, view.cloth_mask, view.reference)
-    if len(points) < 3:
+    world = [scene.to_world(cloth_points(view.frame, view.cloth_mask, view.reference))]
+    for angle in TURNS_RAD:
+        frame, reference, T_world_turned = scene.render_turned(angle)
+        points = cloth_points(frame, mask_from_reference(frame, reference), reference)
+        world.append(points @ T_world_turned[:3, :3].T + T_world_turned[:3, 3])
+    R, t = scene.T_world_cam[:3, :3], scene.T_world_cam[:3, 3]
+    points_cam = (np.concatenate(world) - t) @ R  # back to the camera the plan is given in
+    if len(points_cam) < 3:
         return best_candidate(reply, scene, view)
-    return lowest_point_grasp(points, scene.T_world_cam, frame_id=view.frame.camera.frame_id,
+    return lowest_point_grasp(points_cam, scene.T_world_cam, frame_id=view.frame.camera.frame_id,
                               timestamp_s=view.frame.timestamp_s)
 
 

@@ -185,3 +185,29 @@ def test_a_held_cloth_is_at_rest_when_the_frames_begin_with_a_corner_lowest(clot
         assert np.all(scene.clearance_above_support() > 0.04)  # hanging clear of the table
         lowest = np.argmin(after[:, 2])
         assert min(np.linalg.norm(scene.uv_m[scene.corner_vertices()] - scene.uv_m[lowest], axis=1)) < 0.01
+
+
+@pytest.mark.slow
+def test_a_turned_view_of_a_held_cloth_sees_it_where_it_hangs():
+    from launch_scripts.trial_runner.segment import cloth_points, mask_from_reference
+    from sim.laundry import CLOTH_SPACING_M, LaundryScene
+
+    pytest.importorskip("pybullet")
+    with LaundryScene(laundry_spec(6, state="held"), noise=False) as scene:
+        vertices = scene.cloth_vertices_world()
+        frame, reference, T = scene.render_turned(0.0)
+        np.testing.assert_allclose(T, scene.T_world_cam, atol=1e-12)
+        np.testing.assert_array_equal(frame.depth_m, scene.render().depth_m)
+        holder_xy = scene.spec.holder_position[:2]
+        for angle in (0.5 * np.pi, np.pi):
+            frame, reference, T = scene.render_turned(angle)
+            # the camera went round the vertical through the holder, keeping its distance and height
+            assert T[2, 3] == pytest.approx(scene.T_world_cam[2, 3])
+            assert np.linalg.norm(T[:2, 3] - holder_xy) == pytest.approx(np.linalg.norm(scene.T_world_cam[:2, 3] - holder_xy))
+            points = cloth_points(frame, mask_from_reference(frame, reference), reference)
+            world = points @ T[:3, :3].T + T[:3, 3]
+            assert len(world) > 1000
+            nearest = np.min(np.linalg.norm(world[:, None] - vertices[None], axis=2), axis=1)
+            assert np.percentile(nearest, 95) < CLOTH_SPACING_M  # on the cloth, as it hangs
+    with LaundryScene(laundry_spec(6, state="flat"), noise=False) as scene, pytest.raises(ValueError, match="not held"):
+        scene.render_turned(np.pi)
