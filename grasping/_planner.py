@@ -187,7 +187,8 @@ class GraspTerms:
 class GraspResult:
     """Outcome of grasp planning on one estimate.
 
-    plans : GraspPlan tuple, best score first (ties: lower vertex id first)
+    plans : GraspPlan tuple, best score first (ties: the sharper corner first, then the
+        lower vertex id)
     terms : GraspTerms tuple, the score terms of ``plans[i]`` at index i
     reason : why ``plans`` is empty, one line; "" when there are plans
     rejected : candidates dropped, by cause ("outside workspace", "degenerate
@@ -276,7 +277,8 @@ class _Candidates:
     vertex_ids : (K,) int64; positions : (K, 3) float64 metres; approach : (K, 3)
     unit vectors (gripper z); closing : (K, 3) finger closing directions (gripper
     x, not yet orthogonal to approach); valid : (K,) bool, False where the local
-    geometry is degenerate (zero-area faces, collapsed outline)
+    geometry is degenerate (zero-area faces, collapsed outline); angle_rad : (K,)
+    interior angle of the canonical outline at a corner, pi for other kinds
     """
 
     vertex_ids: np.ndarray
@@ -284,6 +286,7 @@ class _Candidates:
     approach: np.ndarray
     closing: np.ndarray
     valid: np.ndarray
+    angle_rad: np.ndarray
 
 
 def _candidates(
@@ -310,7 +313,7 @@ def _candidates(
         # Any closing direction across the approach works for a point on the
         # surface; take the camera's x axis (y if nearly parallel) to be repeatable.
         ref = np.where(np.abs(approach[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
-        return _Candidates(vid, V[vid], approach, ref, has_normal[vid])
+        return _Candidates(vid, V[vid], approach, ref, has_normal[vid], np.full(1, np.pi))
 
     outline = model.outline
     if outline is None:
@@ -336,7 +339,8 @@ def _candidates(
         approach, closing = inward, toward_cam[vid]
     else:
         approach, closing = -toward_cam[vid], inward
-    return _Candidates(vid, positions, approach, closing, has_normal[vid] & has_inward)
+    angle = outline.interior_angle_rad[rows] if config.mode == "corner" else np.full(len(rows), np.pi)
+    return _Candidates(vid, positions, approach, closing, has_normal[vid] & has_inward, angle)
 
 
 def _inside_workspace(points_cam: np.ndarray, config: GraspPlannerConfig) -> np.ndarray:
@@ -392,7 +396,7 @@ def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerCo
     keep = valid & reachable
     if not np.any(keep):
         return none_left(rejected)
-    vid, positions, approach, closing = vid[keep], positions[keep], approach[keep], closing[keep]
+    vid, positions, approach, closing, angle = vid[keep], positions[keep], approach[keep], closing[keep], found.angle_rad[keep]
 
     nearest = _clearance(estimate, model.graph, vid, config)
     clearance = np.minimum(1.0, nearest / config.clearance_radius_m)
@@ -411,7 +415,10 @@ def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerCo
     low = score < config.min_score
     if np.any(low):
         rejected["below min_score"] = int(np.sum(low))
-    order = [k for k in np.lexsort((vid, -score)) if not low[k]]
+    # Equal scores (a cloth lying flat and in view scores 1 at every corner): the sharpest
+    # corner first, as the surest corner of the cloth rather than a bend of its outline
+    # (a T-shirt's shoulder), then the lower vertex id, to be repeatable.
+    order = [k for k in np.lexsort((vid, angle, -score)) if not low[k]]
     if not order:
         return none_left(rejected)
 

@@ -620,3 +620,16 @@ def test_project_points_matches_opencv():
         np.testing.assert_allclose(project_points(points, camera), expected[:, 0], atol=1e-9)
     behind = project_points(np.array([[0.0, 0.0, -1.0]]), CAMERA)
     assert np.all(np.isnan(behind))
+
+
+def test_equal_scores_put_the_sharpest_corners_first():
+    # Flat and unoccluded: every corner scores the same; the hem (90 deg) and sleeve ends
+    # (91-94 deg) must come before the neck corners (106 deg), whatever their vertex ids:
+    # upside down, the neck corners have the lowest ids.
+    upside_down = (TSHIRT * [1.0, -1.0])[::-1]  # still counter-clockwise
+    canonical, faces, boundary = hex_mesh(upside_down)
+    result = plan_grasps(estimate(canonical, faces, boundary), GraspPlannerConfig(mode="corner"))
+    assert len({p.score for p in result.plans}) == 1 and len(result.plans) == len(TSHIRT_CORNERS)
+    which, _ = nearest_polygon_vertex(canonical[[p.vertex_id for p in result.plans], :2], upside_down)
+    which = len(TSHIRT) - 1 - which  # index in TSHIRT
+    assert set(which[:6]) == {0, 2, 3, 9, 10, 12} and set(which[6:]) == {5, 7}
