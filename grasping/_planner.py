@@ -396,7 +396,8 @@ def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerCo
     keep = valid & reachable
     if not np.any(keep):
         return none_left(rejected)
-    vid, positions, approach, closing, angle = vid[keep], positions[keep], approach[keep], closing[keep], found.angle_rad[keep]
+    vid, positions, approach, closing = vid[keep], positions[keep], approach[keep], closing[keep]
+    angle = found.angle_rad[keep]
 
     nearest = _clearance(estimate, model.graph, vid, config)
     clearance = np.minimum(1.0, nearest / config.clearance_radius_m)
