@@ -9,10 +9,20 @@ received (shape, dtype or value), never ``assert``: input checks must survive
 from __future__ import annotations
 
 import logging
+import math
 
 import numpy as np
 
 log = logging.getLogger(__name__)
+
+
+def check_positive(name: str, value, allow_zero: bool = False) -> float:
+    """``value`` as a finite float > 0 (or >= 0), else ValueError naming it."""
+    value = float(value)
+    if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
+        bound = ">= 0" if allow_zero else "> 0"
+        raise ValueError(f"Expected {name} {bound}, got {value}")
+    return value
 
 
 def check_points(name: str, points, n: int | None = None, dim: int = 3) -> np.ndarray:

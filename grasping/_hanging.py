@@ -26,18 +26,11 @@ import logging
 import numpy as np
 from scipy.spatial import cKDTree
 
-from grasping._checks import check_points, check_transform, check_vector
+from grasping._checks import check_points, check_positive, check_transform, check_vector
 from grasping._geometry import gripper_matrices, quaternion_xyzw_from_matrix
 from ipc.messages import GraspPlan
 
 log = logging.getLogger(__name__)
-
-
-def _positive(name: str, value) -> float:
-    value = float(value)
-    if not (np.isfinite(value) and value > 0):
-        raise ValueError(f"Expected {name} > 0, got {value}")
-    return value
 
 
 def lowest_point_grasp(points_cam, T_world_cam, up_world=(0.0, 0.0, 1.0), min_neighbours: int = 5,
@@ -81,10 +74,10 @@ def lowest_point_grasp(points_cam, T_world_cam, up_world=(0.0, 0.0, 1.0), min_ne
     up_cam = T[:3, :3].T @ check_vector("up_world", up_world, unit=True)
     if isinstance(min_neighbours, bool) or int(min_neighbours) != min_neighbours or min_neighbours < 0:
         raise ValueError(f"Expected min_neighbours an integer >= 0, got {min_neighbours}")
-    support_radius_m = _positive("support_radius_m", support_radius_m)
-    inset_m = _positive("inset_m", inset_m)
-    neighbourhood_m = _positive("neighbourhood_m", neighbourhood_m)
-    opening_width_m = _positive("opening_width_m", opening_width_m)
+    support_radius_m = check_positive("support_radius_m", support_radius_m)
+    inset_m = check_positive("inset_m", inset_m)
+    neighbourhood_m = check_positive("neighbourhood_m", neighbourhood_m)
+    opening_width_m = check_positive("opening_width_m", opening_width_m)
 
     height = points @ up_cam  # height differences are the same in both frames
     tree = cKDTree(points)

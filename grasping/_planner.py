@@ -23,7 +23,7 @@ from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from grasping._checks import check_transform, check_vector
+from grasping._checks import check_positive, check_transform, check_vector
 from grasping._geometry import depth_agrees, gripper_matrices, project_points, quaternion_xyzw_from_matrix, vertex_normals
 from grasping._outline import DEFAULT_CORNER_MAX_ANGLE_RAD, DEFAULT_WINDOW_SPACINGS, Outline, build_outline
 from ipc.messages import GraspPlan, MeshEstimate, RGBDFrame
@@ -32,15 +32,6 @@ log = logging.getLogger(__name__)
 
 MODES = ("corner", "boundary", "highest")
 EDGE_APPROACHES = ("pinch", "normal")
-
-
-def _positive(name: str, value, allow_zero: bool = False) -> float:
-    """``value`` as a finite float > 0 (or >= 0), else ValueError naming it."""
-    value = float(value)
-    if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
-        bound = ">= 0" if allow_zero else "> 0"
-        raise ValueError(f"Expected {name} {bound}, got {value}")
-    return value
 
 
 @dataclass(frozen=True, eq=False)
@@ -136,9 +127,9 @@ class GraspPlannerConfig:
         set_(self, "workspace_min_world", lower)
         set_(self, "workspace_max_world", upper)
         for name in ("visibility_tol_m", "clearance_radius_m", "opening_width_m", "boundary_spacing_m", "outline_window_spacings"):
-            set_(self, name, _positive(name, getattr(self, name)))
+            set_(self, name, check_positive(name, getattr(self, name)))
         for name in ("weight_visibility", "weight_clearance", "weight_confidence", "pinch_inset_m"):
-            set_(self, name, _positive(name, getattr(self, name), allow_zero=True))
+            set_(self, name, check_positive(name, getattr(self, name), allow_zero=True))
         if self.weight_clearance + self.weight_confidence <= 0:
             raise ValueError("Expected weight_clearance + weight_confidence > 0, got 0 (the score would be undefined without a frame)")
         if float(self.neighbour_geodesic_factor) < 1:

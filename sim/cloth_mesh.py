@@ -345,10 +345,10 @@ def tshirt_mesh(shape: TShirtShape | None = None, spacing_m: float = 0.03) -> Cl
     # centroid lies on the outline, so the inside test keeps some of them. They hold no
     # cloth and make a fold in the outline (PyBullet's loadSoftBody can hang on them):
     # drop them. A true triangle of this lattice has an area of about 0.43 spacing^2.
-    area = np.abs(_signed_areas(uv, tri))
+    signed = _signed_areas(uv, tri)
     centroids = uv[tri].mean(axis=1)
-    faces = tri[points_in_polygon(centroids, outline) & (area > 1e-6 * spacing_m**2)].astype(np.int64)
-    flip = _signed_areas(uv, faces) > 0
+    keep = points_in_polygon(centroids, outline) & (np.abs(signed) > 1e-6 * spacing_m**2)
+    faces, flip = tri[keep].astype(np.int64), signed[keep] > 0
     faces[flip] = faces[flip][:, [0, 2, 1]]
     used, faces = np.unique(faces, return_inverse=True)
     faces = faces.reshape(-1, 3)

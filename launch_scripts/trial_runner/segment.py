@@ -16,6 +16,7 @@ import cv2
 import numpy as np
 
 from ipc.messages import RGBDFrame
+from perception.camera import backproject
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +74,4 @@ def cloth_points(frame: RGBDFrame, mask: np.ndarray, reference: RGBDFrame, depth
     with np.errstate(invalid="ignore"):
         nearer = np.isfinite(d) & (d > 0) & np.isfinite(r) & (r > 0) & (d < r - depth_tol_m)
     rows, cols = np.nonzero(mask & nearer)
-    z = d[rows, cols].astype(np.float64)
-    K = frame.camera.K
-    return np.column_stack([(cols - K[0, 2]) / K[0, 0] * z, (rows - K[1, 2]) / K[1, 1] * z, z])
+    return backproject(np.column_stack([cols, rows]), d[rows, cols], frame.camera.K)

@@ -55,6 +55,7 @@ from launch_scripts.trial_runner.pictures import (
 )
 from launch_scripts.trial_runner.processes import ChildError, Children
 from launch_scripts.trial_runner.segment import cloth_points, mask_from_reference
+from sim.camera_model import invert_transform, transform_points
 from sim.grasp_execution import ExecutionConfig, execute_grasp
 from sim.ground_truth import error_summary, vertex_errors
 
@@ -165,9 +166,9 @@ def lowest_point_when_held(reply: GraspPlanReply, scene, view: View) -> GraspPla
     for angle in TURNS_RAD:
         frame, reference, T_world_turned = scene.render_turned(angle)
         points = cloth_points(frame, mask_from_reference(frame, reference), reference)
-        world.append(points @ T_world_turned[:3, :3].T + T_world_turned[:3, 3])
-    R, t = scene.T_world_cam[:3, :3], scene.T_world_cam[:3, 3]
-    points_cam = (np.concatenate(world) - t) @ R  # back to the camera the plan is given in
+        world.append(transform_points(T_world_turned, points))
+    # back to the camera the plan is given in
+    points_cam = transform_points(invert_transform(scene.T_world_cam), np.concatenate(world))
     if len(points_cam) < 3:
         return best_candidate(reply, scene, view)
     return lowest_point_grasp(points_cam, scene.T_world_cam, frame_id=view.frame.camera.frame_id,
