@@ -16,6 +16,7 @@ REPO = Path(__file__).resolve().parents[2]
 # Waits on the event in a tight loop, so a signal often lands while the main thread holds
 # the event's lock: where a handler calling stop.set() deadlocks.
 WAITER = textwrap.dedent("""
+    import sys
     import threading
     from launch_scripts.cli import stop_on_signals
     stop = threading.Event()
@@ -24,6 +25,7 @@ WAITER = textwrap.dedent("""
     while not stop.wait(0.0005):
         pass
     print("stopped", flush=True)
+    sys.stdin.read()  # exit only after the whole burst: at shutdown Python restores the default handlers
 """)
 
 
@@ -31,13 +33,13 @@ WAITER = textwrap.dedent("""
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_a_burst_of_signals_stops_a_process_waiting_on_the_event(sig):
     for _ in range(5):
-        proc = subprocess.Popen([sys.executable, "-c", WAITER], stdout=subprocess.PIPE, text=True, cwd=REPO,
-                                env={**os.environ, "PYTHONPATH": str(REPO)})
+        proc = subprocess.Popen([sys.executable, "-c", WAITER], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                                cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)})
         try:
             assert proc.stdout.readline().strip() == "ready"
             for _ in range(50):  # a parent-death signal can come more than once
                 proc.send_signal(sig)
-            out, _ = proc.communicate(timeout=20)
+            out, _ = proc.communicate(timeout=20)  # closes stdin: the waiter may exit now
         finally:
             if proc.poll() is None:
                 proc.kill()
