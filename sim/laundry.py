@@ -12,12 +12,16 @@ What a seed draws (``laundry_spec``):
 - initial state (``INITIAL_STATES``): ``flat`` (laid flat at a random yaw and dropped
   from a few centimetres), ``crumpled`` (dropped edge first from 10-25 cm in a pose
   tilted by 35-75 degrees; it lands shifted and creased, mostly spread: PyBullet's
-  cloth has no self-collision and little bending stiffness), ``folded`` (a straight
-  fold: the part of the cloth beyond a random row or column of its vertices is turned
-  over before the drop), or ``held`` (hanging from a holder that clamps one true
+  cloth has little bending stiffness), ``folded`` (a straight fold: the part of the
+  cloth beyond a random row or column of its vertices is turned over before the
+  drop), or ``held`` (hanging from a holder that clamps one true
   corner, its lowest point above the table; the holder is a visible box around that
   corner, which it hides as a hand would; the cloth falls into its folds for 5 s and is
   then brought to rest, as air drag, which PyBullet lacks, would do);
+- the cloth's layers collide with each other (``ClothMaterial.self_collision``): a fold
+  or a crumple stacks its layers, each 12 mm (twice the collision margin) above the one
+  below, rather than letting them pass into one plane, so a fold stands thicker than
+  one layer as a real one does;
 - table: top 0.70-0.78 m above the floor, 1.2 m x 0.8 m, neutral grey;
 - camera: 1.0-1.3 m from the cloth, 50-70 degrees above the horizontal, azimuth within
   20 degrees of the table's front (-y), aim jittered by a few centimetres; Kinect-like
@@ -315,12 +319,12 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
         width, height = 0.35 + 0.25 * size_draw[0], 0.30 + 0.20 * size_draw[1]
         mesh = rectangle_mesh(width, height, spacing_m=CLOTH_SPACING_M)
         corners_uv, names = rectangle_corners_uv(width, height)
-        material = ClothMaterial(mass_per_area_kg_m2=0.3)
+        material = ClothMaterial(mass_per_area_kg_m2=0.3, self_collision=True)
     else:
         shape = TShirtShape().scaled(0.60 + 0.25 * size_draw[0])
         mesh = tshirt_mesh(shape, spacing_m=CLOTH_SPACING_M)
         corners_uv, names = tshirt_corners_uv(shape)
-        material = ClothMaterial(mass_per_area_kg_m2=0.18)
+        material = ClothMaterial(mass_per_area_kg_m2=0.18, self_collision=True)
     texture = _texture(mesh, rng, printed)
     table_top = rng.uniform(0.70, 0.78)
     grey = rng.uniform(0.55, 0.70)

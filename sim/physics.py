@@ -54,6 +54,10 @@ class ClothMaterial:
         or bending of the whole cloth
     friction : contact friction coefficient with rigid bodies
     collision_margin_m : contact thickness around the cloth
+    self_collision : layers of the cloth collide with each other, so a fold or a crumple
+        stacks one layer on another (2 * ``collision_margin_m`` apart) instead of letting
+        them pass through each other into one plane, where depth cannot tell a fold
+        from a single layer; PyBullet's default is off
     """
 
     mass_per_area_kg_m2: float = 0.2
@@ -62,6 +66,7 @@ class ClothMaterial:
     damping_number: float = 2.0
     friction: float = 0.8
     collision_margin_m: float = 0.006
+    self_collision: bool = False
 
     def node_mass_kg(self, mesh: ClothMesh) -> float:
         """Mean mass of one node of ``mesh`` (kg)."""
@@ -232,6 +237,15 @@ class ClothPhysics:
         self.cloth_mesh: ClothMesh | None = None
         self.grippers: list[Gripper] = []
 
+    def set_timestep(self, timestep_s: float) -> None:
+        """Step by ``timestep_s`` from now on. The cloth keeps the spring constants it was
+        added with (``add_cloth`` derives them from the step then): a shorter step
+        integrates the same cloth more finely."""
+        if not 0 < timestep_s <= 0.02:
+            raise ValueError(f"set_timestep: expected 0 < timestep_s <= 0.02, got {timestep_s}")
+        self.timestep_s = float(timestep_s)
+        self.pybullet.setTimeStep(self.timestep_s, physicsClientId=self.client)
+
     def __enter__(self) -> ClothPhysics:
         return self
 
@@ -291,7 +305,7 @@ class ClothPhysics:
             springElasticStiffness=stiffness,
             springBendingStiffness=stiffness * material.bending_ratio,
             springDampingStiffness=material.damping(mesh, self.timestep_s),
-            useSelfCollision=0,
+            useSelfCollision=int(material.self_collision),
             frictionCoeff=material.friction,
             physicsClientId=self.client,
         )

@@ -180,6 +180,25 @@ def test_slerp_halfway_about_z():
     np.testing.assert_allclose(slerp(q0, -q0, 0.3), q0, atol=1e-12)
 
 
+def test_set_timestep_steps_finer_from_then_on():
+    with ClothPhysics(timestep_s=1.0 / 240.0) as physics:
+        physics.add_box([0.1, 0.1, 0.1], [0.0, 0.0, 0.0])
+        calls = []
+        real_step = physics.pybullet.stepSimulation
+        physics.pybullet.stepSimulation = lambda **kw: calls.append(kw) or real_step(**kw)
+        try:
+            physics.advance(0.1)
+            physics.set_timestep(1.0 / 480.0)
+            physics.advance(0.1)
+        finally:
+            physics.pybullet.stepSimulation = real_step
+        assert len(calls) == 24 + 48 and physics.time_s == pytest.approx(0.2)
+        engine = physics.pybullet.getPhysicsEngineParameters(physicsClientId=physics.client)
+        assert engine["fixedTimeStep"] == pytest.approx(1.0 / 480.0)
+        with pytest.raises(ValueError, match="set_timestep: expected 0 < timestep_s <= 0.02, got 0"):
+            physics.set_timestep(0)
+
+
 def test_physics_checks_arguments():
     with pytest.raises(ValueError, match="timestep_s"):
         ClothPhysics(timestep_s=0.1)
