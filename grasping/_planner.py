@@ -25,6 +25,7 @@ from scipy.spatial import cKDTree
 
 from grasping._checks import check_positive, check_transform, check_vector
 from grasping._geometry import depth_agrees, gripper_matrices, project_points, quaternion_xyzw_from_matrix, vertex_normals
+from grasping._layers import step_above_beyond
 from grasping._outline import DEFAULT_CORNER_MAX_ANGLE_RAD, DEFAULT_WINDOW_SPACINGS, Outline, build_outline
 from ipc.messages import GraspPlan, MeshEstimate, RGBDFrame
 
@@ -69,8 +70,16 @@ class GraspPlannerConfig:
         radii of the grasped vertex along the canonical mesh are the same layer
         (the cloth stretches little, so nearby material points stay within the
         radius; the factor leaves room for the tracker compressing the mesh)
-    weight_visibility, weight_clearance, weight_confidence : float >= 0, weights
-        of the score terms; visibility counts only when a frame is given, and
+    layer_thickness_m : float > 0, thickness of one layer of the cloth as the depth
+        sensor sees it: a corner or boundary point whose cloth stands more than one
+        such layer above the surface just beyond the outline lies on more than one
+        layer, as at a fold's end (``GraspTerms.single_layer``)
+    max_support_gap_m : float > 0, a point standing higher than this above the surface
+        beyond it does not rest on that surface (it overhangs an edge, or the cloth
+        hangs), and its layers are not judged
+    weight_visibility, weight_clearance, weight_confidence, weight_single_layer :
+        float >= 0, weights of the score terms; visibility and single_layer count only
+        when a frame is given (single_layer in corner and boundary modes), and
         ``weight_clearance + weight_confidence`` must be > 0
     min_score : float in [0, 1], plans scoring lower are dropped
     min_confidence : float in [0, 1], estimates less confident give no plans
@@ -98,6 +107,9 @@ class GraspPlannerConfig:
     weight_visibility: float = 1.0
     weight_clearance: float = 1.0
     weight_confidence: float = 1.0
+    weight_single_layer: float = 1.0
+    layer_thickness_m: float = 0.008
+    max_support_gap_m: float = 0.05
     min_score: float = 0.0
     min_confidence: float = 0.0
     opening_width_m: float = 0.04
@@ -126,9 +138,10 @@ class GraspPlannerConfig:
             raise ValueError(f"Expected workspace_min_world <= workspace_max_world, got {lower.tolist()} and {upper.tolist()}")
         set_(self, "workspace_min_world", lower)
         set_(self, "workspace_max_world", upper)
-        for name in ("visibility_tol_m", "clearance_radius_m", "opening_width_m", "boundary_spacing_m", "outline_window_spacings"):
+        for name in ("visibility_tol_m", "clearance_radius_m", "opening_width_m", "boundary_spacing_m", "outline_window_spacings",
+                     "layer_thickness_m", "max_support_gap_m"):
             set_(self, name, check_positive(name, getattr(self, name)))
-        for name in ("weight_visibility", "weight_clearance", "weight_confidence", "pinch_inset_m"):
+        for name in ("weight_visibility", "weight_clearance", "weight_confidence", "weight_single_layer", "pinch_inset_m"):
             set_(self, name, check_positive(name, getattr(self, name), allow_zero=True))
         if self.weight_clearance + self.weight_confidence <= 0:
             raise ValueError("Expected weight_clearance + weight_confidence > 0, got 0 (the score would be undefined without a frame)")
@@ -166,12 +179,22 @@ class GraspTerms:
         canonical mesh); 1 when none is within the radius
     confidence : the estimate's confidence
     nearest_layer_m : d in metres, or inf when no other layer is within the radius
+    single_layer : for corner and boundary grasps planned with a frame,
+        clip(2 - s / layer_thickness_m, 0, 1), s = ``step_m``: 1 where one layer of
+        cloth lies at the point, 0 from two layers up (a fold's end, where the cloth
+        bends back over itself); 1 where s is unmeasured or above
+        ``max_support_gap_m``; None otherwise (term left out)
+    step_m : s, metres: the median height of the measured cloth just inside the outline
+        above the measured surface just beyond it (``grasping._layers``); NaN when not
+        measured
     """
 
     visibility: float | None
     clearance: float
     confidence: float
     nearest_layer_m: float
+    single_layer: float | None = None
+    step_m: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -269,7 +292,9 @@ class _Candidates:
     unit vectors (gripper z); closing : (K, 3) finger closing directions (gripper
     x, not yet orthogonal to approach); valid : (K,) bool, False where the local
     geometry is degenerate (zero-area faces, collapsed outline); angle_rad : (K,)
-    interior angle of the canonical outline at a corner, pi for other kinds
+    interior angle of the canonical outline at a corner, pi for other kinds;
+    inward : (K, 3) unit vectors into the cloth across its outline, None for the
+    highest-point grasp
     """
 
     vertex_ids: np.ndarray
@@ -278,6 +303,7 @@ class _Candidates:
     closing: np.ndarray
     valid: np.ndarray
     angle_rad: np.ndarray
+    inward: np.ndarray | None = None
 
 
 def _candidates(
@@ -331,7 +357,7 @@ def _candidates(
     else:
         approach, closing = -toward_cam[vid], inward
     angle = outline.interior_angle_rad[rows] if config.mode == "corner" else np.full(len(rows), np.pi)
-    return _Candidates(vid, positions, approach, closing, has_normal[vid] & has_inward, angle)
+    return _Candidates(vid, positions, approach, closing, has_normal[vid] & has_inward, angle, inward)
 
 
 def _inside_workspace(points_cam: np.ndarray, config: GraspPlannerConfig) -> np.ndarray:
@@ -354,6 +380,19 @@ def _clearance(estimate: MeshEstimate, graph, vid: np.ndarray, config: GraspPlan
         if other.size:
             nearest[k] = np.min(np.linalg.norm(V[other] - V[vid[k]], axis=1))
     return nearest
+
+
+def _single_layer(points: np.ndarray, inward: np.ndarray, frame: RGBDFrame,
+                  config: GraspPlannerConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The single_layer term and the measured step (``GraspTerms``) at outline points (K, 3), camera frame."""
+    up = config.up_cam
+    outward, ok = _unit(-(inward - (inward @ up)[:, None] * up))
+    step = np.full(len(points), np.nan)
+    if np.any(ok):
+        step[ok] = step_above_beyond(points[ok], outward[ok], up, frame)
+    judged = np.isfinite(step) & (step <= config.max_support_gap_m)
+    term = np.where(judged, np.clip(2.0 - np.where(judged, step, 0.0) / config.layer_thickness_m, 0.0, 1.0), 1.0)
+    return term, step
 
 
 def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerConfig, frame: RGBDFrame | None) -> GraspResult:
@@ -389,19 +428,24 @@ def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerCo
         return none_left(rejected)
     vid, positions, approach, closing = vid[keep], positions[keep], approach[keep], closing[keep]
     angle = found.angle_rad[keep]
+    inward = None if found.inward is None else found.inward[keep]
 
     nearest = _clearance(estimate, model.graph, vid, config)
     clearance = np.minimum(1.0, nearest / config.clearance_radius_m)
     confidence = float(estimate.confidence)
     score = config.weight_clearance * clearance + config.weight_confidence * confidence
     total_weight = config.weight_clearance + config.weight_confidence
-    visibility = None
+    visibility, single_layer, step = None, None, np.full(len(vid), np.nan)
     if frame is not None:
         points = estimate.vertices[vid]
         uv = project_points(points, frame.camera)
         visibility = depth_agrees(points, frame.depth_m, uv, config.visibility_tol_m, config.visibility_window_px).astype(np.float64)
         score = score + config.weight_visibility * visibility
         total_weight += config.weight_visibility
+        if inward is not None:
+            single_layer, step = _single_layer(points, inward, frame, config)
+            score = score + config.weight_single_layer * single_layer
+            total_weight += config.weight_single_layer
     score = score / total_weight
 
     low = score < config.min_score
@@ -437,9 +481,13 @@ def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerCo
                 clearance=float(clearance[k]),
                 confidence=confidence,
                 nearest_layer_m=float(nearest[k]),
+                single_layer=None if single_layer is None else float(single_layer[k]),
+                step_m=float(step[k]),
             )
         )
-    log.debug("%d %s grasp(s), best score %.3f at vertex %d", len(plans), config.mode, plans[0].score, plans[0].vertex_id)
+    log.debug("%d %s grasp(s), best score %.3f at vertex %d; steps above the surface beyond (mm): %s", len(plans),
+              config.mode, plans[0].score, plans[0].vertex_id,
+              " ".join(f"{t.step_m * 1000:.1f}" for t in terms))
     return GraspResult(plans=tuple(plans), terms=tuple(terms), reason="", rejected=rejected)
 
 
@@ -450,8 +498,9 @@ def plan_grasps(estimate: MeshEstimate, config: GraspPlannerConfig | None = None
     (found by ``find_corners``) followed through the estimate, points evenly
     spaced along the outline, or the highest reachable vertex. Candidates outside
     the workspace are dropped; the rest are scored by the weighted mean of
-    visibility (only with ``frame``), clearance from other cloth layers and the
-    estimate's confidence (see ``GraspTerms``). This recomputes the canonical
+    visibility (only with ``frame``), clearance from other cloth layers, the
+    estimate's confidence and, for corner and boundary grasps with ``frame``,
+    whether a single layer of cloth lies there (see ``GraspTerms``). This recomputes the canonical
     outline on every call; ``GraspPlanner`` caches it.
 
     Parameters

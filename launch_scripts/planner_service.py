@@ -4,11 +4,12 @@
         [--kinds corner boundary highest] [--max-estimate-age-s S] [--edge-approach pinch|normal] [--pinch-inset-m M]
         [--T-world-cam 16 numbers] [--workspace-min X Y Z] [--workspace-max X Y Z]
         [--min-score S] [--min-confidence C] [--opening-width-m W] [--outline-window-spacings L]
-        [--corner-max-angle-deg A] [--print-endpoint]
+        [--corner-max-angle-deg A] [--layer-thickness-m T] [--weight-single-layer W] [--print-endpoint]
         [--log-level LEVEL]
 
 It subscribes to the perception service's MeshEstimate stream (default
-``ipc.endpoints.ESTIMATES``), optionally to the frame stream for the visibility term,
+``ipc.endpoints.ESTIMATES``), optionally to the frame stream for the visibility and
+single-layer terms,
 and answers GraspRequest on a REP socket (default ``ipc.endpoints.PLANNER``) with
 GraspPlanReply, best first, or ErrorReply: ``not_ready`` before the first estimate,
 ``invalid`` for a request it cannot serve, ``protocol`` for one it cannot decode; it
@@ -78,6 +79,12 @@ def build_parser() -> argparse.ArgumentParser:
                         f"(default {defaults.outline_window_spacings:g}); features shorter than ~1.5 times it are not resolved")
     p.add_argument("--corner-max-angle-deg", type=finite_float, default=math.degrees(defaults.corner_max_angle_rad),
                    help=f"largest interior angle of a corner, degrees (default {math.degrees(defaults.corner_max_angle_rad):g})")
+    p.add_argument("--layer-thickness-m", type=finite_float, default=defaults.layer_thickness_m,
+                   help="one layer of the cloth as the depth sensor sees it, metres: corners standing higher above the "
+                        f"surface beyond score lower, as a fold's end (default {defaults.layer_thickness_m:g}; "
+                        "--weight-single-layer 0 turns this off)")
+    p.add_argument("--weight-single-layer", type=finite_float, default=defaults.weight_single_layer,
+                   help=f"weight of that term in the score (default {defaults.weight_single_layer:g})")
     p.add_argument("--print-endpoint", action="store_true",
                    help='print {"planner": ENDPOINT} as one JSON line on stdout once serving')
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
@@ -89,7 +96,8 @@ def config_from_args(args) -> GraspPlannerConfig:
     kw = {"edge_approach": args.edge_approach, "pinch_inset_m": args.pinch_inset_m, "min_score": args.min_score,
           "min_confidence": args.min_confidence, "opening_width_m": args.opening_width_m,
           "outline_window_spacings": args.outline_window_spacings,
-          "corner_max_angle_rad": math.radians(args.corner_max_angle_deg)}
+          "corner_max_angle_rad": math.radians(args.corner_max_angle_deg),
+          "layer_thickness_m": args.layer_thickness_m, "weight_single_layer": args.weight_single_layer}
     if args.T_world_cam is not None:
         kw["T_world_cam"] = np.asarray(args.T_world_cam, dtype=np.float64).reshape(4, 4)
     if args.up is not None:

@@ -424,7 +424,8 @@ def test_min_score_drops_hidden_corners():
     x0, y0 = flat.vertices[:, :2].min(axis=0)
     x1, y1 = flat.vertices[:, :2].max(axis=0)
     frame = frame_of_boxes([(x0, 0.5 * (x0 + x1), y0, y1, 0.98)])
-    result = plan_grasps(fold, GraspPlannerConfig(min_score=0.5), frame)
+    # Camera-facing layers: no surface beyond the outline to measure layers against.
+    result = plan_grasps(fold, GraspPlannerConfig(min_score=0.5, weight_single_layer=0.0), frame)
     assert sorted(p.vertex_id for p in result.plans) == sorted(ids[[1, 2]])
     assert result.rejected == {"below min_score": 2}
 
@@ -633,3 +634,113 @@ def test_equal_scores_put_the_sharpest_corners_first():
     which, _ = nearest_polygon_vertex(canonical[[p.vertex_id for p in result.plans], :2], upside_down)
     which = len(TSHIRT) - 1 - which  # index in TSHIRT
     assert set(which[:6]) == {0, 2, 3, 9, 10, 12} and set(which[6:]) == {5, 7}
+
+
+# --------------------------------------------------------------------------- layers at the outline
+
+TABLE_CAMERA = CameraInfo(width=640, height=480, K=np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]]))
+
+
+def table_view(elevation_deg=60.0, distance_m=1.1):
+    """T_world_cam of a camera looking down at the world origin (z up) from the -y side."""
+    e = np.radians(elevation_deg)
+    eye = distance_m * np.array([0.0, -np.cos(e), np.sin(e)])
+    z = -eye / np.linalg.norm(eye)
+    x = np.cross(z, [0.0, 0.0, 1.0])
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, np.cross(z, x), z, eye
+    return T
+
+
+def frame_of_layers(T_world_cam, slabs):
+    """RGBDFrame of a table (z = 0) under flat slabs: slabs = [(x0, x1, y0, y1, top_z), ...], world metres.
+
+    Each pixel's ray stops at the highest slab top it crosses inside that slab, else at
+    the table; the slabs' sides are not drawn (they are a few millimetres high).
+    """
+    v, u = np.mgrid[0 : TABLE_CAMERA.height, 0 : TABLE_CAMERA.width]
+    rays_cam = np.stack([(u - TABLE_CAMERA.cx) / TABLE_CAMERA.fx, (v - TABLE_CAMERA.cy) / TABLE_CAMERA.fy,
+                         np.ones(u.shape)], axis=-1)
+    R, eye = T_world_cam[:3, :3], T_world_cam[:3, 3]
+    rays = rays_cam @ R.T  # world direction per unit of camera depth
+    depth = -eye[2] / rays[..., 2]  # the table
+    for x0, x1, y0, y1, top in sorted(slabs, key=lambda s: s[4]):  # highest last, overwrites
+        t = (top - eye[2]) / rays[..., 2]
+        x, y = eye[0] + t * rays[..., 0], eye[1] + t * rays[..., 1]
+        depth = np.where((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1), t, depth)
+    return RGBDFrame(rgb=np.zeros((TABLE_CAMERA.height, TABLE_CAMERA.width, 3), np.uint8),
+                     depth_m=depth.astype(np.float32), camera=TABLE_CAMERA)
+
+
+def cloth_on_table(T_world_cam, top_z, half=(0.2, 0.15)):
+    """MeshEstimate of a rectangle lying on the table at ``top_z`` (canonical = flat world xy), camera frame."""
+    W, H = 2 * half[0], 2 * half[1]
+    canonical, faces, boundary = hex_mesh(np.array([[0, 0], [W, 0], [W, H], [0, H]]), spacing=0.02)
+    world = canonical - [half[0], half[1], 0.0] + [0.0, 0.0, top_z]
+    T_cam_world = np.linalg.inv(T_world_cam)
+    vertices = world @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    return estimate(canonical, faces, boundary, vertices=vertices), world
+
+
+@pytest.mark.parametrize("elevation_deg", [50.0, 70.0])
+def test_step_above_beyond_measures_one_and_two_layers(elevation_deg):
+    from grasping._layers import step_above_beyond
+
+    T = table_view(elevation_deg)
+    layer = 0.006
+    # right part folded over: two layers from x = 0.05 to the crease at x = 0.2
+    frame = frame_of_layers(T, [(-0.2, 0.2, -0.15, 0.15, layer), (0.05, 0.2, -0.15, 0.15, 2 * layer)])
+    corners_world = np.array([[-0.2, -0.15, layer], [-0.2, 0.15, layer], [0.2, -0.15, 2 * layer], [0.2, 0.15, 2 * layer]])
+    outward_world = corners_world * [1.0, 1.0, 0.0]
+    outward_world /= np.linalg.norm(outward_world, axis=1, keepdims=True)
+    T_cam_world = np.linalg.inv(T)
+    points = corners_world @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    steps = step_above_beyond(points, outward_world @ T_cam_world[:3, :3].T, T_cam_world[:3, :3] @ [0.0, 0.0, 1.0], frame)
+    np.testing.assert_allclose(steps, [layer, layer, 2 * layer, 2 * layer], atol=0.001)
+    # A point beyond the image, or a frame without depth there, is not measured.
+    outside = step_above_beyond(points[:1] + [5.0, 0.0, 0.0], outward_world[:1] @ T_cam_world[:3, :3].T,
+                                T_cam_world[:3, :3] @ [0.0, 0.0, 1.0], frame)
+    no_depth = RGBDFrame(rgb=frame.rgb, depth_m=np.zeros_like(frame.depth_m), camera=TABLE_CAMERA)
+    unmeasured = step_above_beyond(points, outward_world @ T_cam_world[:3, :3].T,
+                                   T_cam_world[:3, :3] @ [0.0, 0.0, 1.0], no_depth)
+    assert np.isnan(outside).all() and np.isnan(unmeasured).all()
+
+
+def test_corners_at_a_folds_end_rank_after_true_corners():
+    # A towel folded along x = 0.2: its outline is a rectangle again, two of whose corners
+    # are the fold's ends, where two layers lie. Outline geometry scores all four alike.
+    T = table_view()
+    layer = 0.006
+    cloth, world = cloth_on_table(T, layer)
+    frame = frame_of_layers(T, [(-0.2, 0.2, -0.15, 0.15, layer), (0.05, 0.2, -0.15, 0.15, 2 * layer)])
+    on_fold = world[:, 0] > 0.05 + 1e-9
+    folded_cloth = MeshEstimate(vertices=cloth.vertices + np.outer(on_fold, np.linalg.inv(T)[:3, :3] @ [0, 0, layer]),
+                                faces=cloth.faces, boundary=cloth.boundary, canonical=cloth.canonical)
+    config = GraspPlannerConfig(mode="corner", T_world_cam=T, layer_thickness_m=0.008)
+    result = plan_grasps(folded_cloth, config, frame)
+    assert len(result.plans) == 4
+    x_of = {p.vertex_id: world[p.vertex_id, 0] for p in result.plans}
+    terms = {p.vertex_id: t for p, t in zip(result.plans, result.terms)}
+    assert [x_of[p.vertex_id] < 0 for p in result.plans] == [True, True, False, False]
+    for p in result.plans:
+        t = terms[p.vertex_id]
+        if x_of[p.vertex_id] < 0:
+            assert t.single_layer == 1.0 and t.step_m == pytest.approx(layer, abs=0.001)
+        else:
+            assert t.single_layer < 0.6 and t.step_m == pytest.approx(2 * layer, abs=0.001)
+    # Turned off, the four corners tie again.
+    flat_scores = plan_grasps(folded_cloth, GraspPlannerConfig(mode="corner", T_world_cam=T, weight_single_layer=0.0),
+                              frame)
+    assert len({round(p.score, 9) for p in flat_scores.plans}) == 1
+
+
+def test_a_corner_far_above_the_surface_beyond_is_not_judged():
+    # A cloth on a box 10 cm above the table: the surface beyond its outline is the table,
+    # too far below for a layer; the term says nothing rather than calling it a fold.
+    T = table_view()
+    cloth, _ = cloth_on_table(T, 0.10)
+    frame = frame_of_layers(T, [(-0.2, 0.2, -0.15, 0.15, 0.10)])
+    result = plan_grasps(cloth, GraspPlannerConfig(mode="corner", T_world_cam=T), frame)
+    assert len(result.terms) == 4
+    assert all(t.single_layer == 1.0 and t.step_m == pytest.approx(0.10, abs=0.005) for t in result.terms)
