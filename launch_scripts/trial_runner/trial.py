@@ -15,7 +15,7 @@ the perception service to initialise on it; publish ``observe_frames`` frames on
 time, each after the estimate of the previous one arrived (republished with back-off
 until it does, so a slow joiner or a loaded machine only delays the trial); request a
 plan of the configured mode; execute the plan the controller chooses (the planner's
-best; when the robot holds the cloth up, the lowest point of the cloth it sees from four sides,
+best; when the robot holds the cloth up, the lowest point of the cloth it sees through a full turn,
 ``lowest_point_when_held``) with ``sim.grasp_execution``; judge it (``judge.judge``).
 Children are stopped on every exit path and every wait is bounded.
 
@@ -123,8 +123,13 @@ class TrialConfig:
             raise ValueError(f"Expected max_candidates in [1, {GraspRequest.MAX_CANDIDATES}], got {self.max_candidates}")
 
 
-#: Turns of a held cloth, after the first look, before its lowest point is chosen.
-TURNS_RAD = (0.5 * np.pi, np.pi, 1.5 * np.pi)
+#: Turns of a held cloth, after the first look, before its lowest point is chosen: every
+#: 30 degrees of a full turn. Measured on 32 held scenes (even seeds 0-62, state forced;
+#: the cloth vertex nearest the chosen point against the true corners, material
+#: distance): 4 looks left it 4-9 cm from every corner in 5 scenes and on a corner's
+#: vertex in 13; 8 looks at most 3.1 cm, on a corner's vertex in 18; 12 looks at most
+#: 3.1 cm, on a corner's vertex in 25; 16 looks no better.
+TURNS_RAD = tuple(np.radians(np.arange(30.0, 360.0, 30.0)))
 
 
 @dataclass(frozen=True)
@@ -156,8 +161,8 @@ def lowest_point_when_held(reply: GraspPlanReply, scene, view: View) -> GraspPla
     mesh: the mesh, laid over the first frame, covers a hanging cloth unevenly and often
     stops short of its tip. From one view the tip is often hidden, behind a nearer layer
     or seen edge-on where the sensor loses depth, so the robot turns the held cloth a
-    quarter turn at a time and looks again (``TURNS_RAD``, ``scene.render_turned``),
-    pooling the points of the last frame and of the three turned views in the world frame
+    twelfth of a turn at a time and looks again (``TURNS_RAD``, ``scene.render_turned``),
+    pooling the points of the last frame and of the turned views in the world frame
     (``scene.T_world_cam``, z up).
     """
     if getattr(scene, "holder", None) is None:
