@@ -66,12 +66,6 @@ class ExecutionConfig:
     settle_s : simulated time after the lift before the cloth is judged
     clear_margin_m : a node at least this high above the surface under it is clear
     samples_per_edge : surface samples per triangle edge when finding the cloth in the jaw
-    timestep_s : physics step from closing to the end of settling (the scene's step
-        is restored after). Layers that collide with each other
-        (``ClothMaterial.self_collision``) can pass into each other within one 1/240 s
-        step when a cloth released by its holder falls onto itself at a few m/s, and
-        their contacts then blow the cloth apart (1 of 32 held scenes of even seeds at
-        1/240 s, none at 1/480 s).
     """
 
     pregrasp_distance_m: float = 0.10
@@ -86,11 +80,10 @@ class ExecutionConfig:
     settle_s: float = 1.0
     clear_margin_m: float = 0.02
     samples_per_edge: int = 8
-    timestep_s: float = 1.0 / 480.0
 
     def __post_init__(self):
         for name in ("pregrasp_distance_m", "approach_speed_m_s", "finger_length_m", "finger_width_m",
-                     "lift_speed_m_s", "timestep_s"):
+                     "lift_speed_m_s"):
             value = float(getattr(self, name))
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"ExecutionConfig.{name}: expected a positive number, got {value}")
@@ -282,13 +275,8 @@ def execute_grasp(scene, plan: GraspPlan, config: ExecutionConfig | None = None,
         on_phase("closed")
     scene.release_holder()
     gripper.move_to(fingertip + np.array([0.0, 0.0, config.lift_height_m]), quat)
-    scene_timestep_s = physics.timestep_s
-    physics.set_timestep(config.timestep_s)
-    try:
-        physics.advance(config.lift_height_m / config.lift_speed_m_s)
-        physics.advance(config.settle_s)
-    finally:
-        physics.set_timestep(scene_timestep_s)
+    physics.advance(config.lift_height_m / config.lift_speed_m_s)
+    physics.advance(config.settle_s)
     clearance = scene.clearance_above_support()
     lowest = float(clearance.min())
     clear = lowest >= config.clear_margin_m

@@ -124,11 +124,11 @@ class TrialConfig:
 
 
 #: Turns of a held cloth, after the first look, before its lowest point is chosen: every
-#: 30 degrees of a full turn. Measured on 32 held scenes (even seeds 0-62, state forced;
-#: the cloth vertex nearest the chosen point against the true corners, material
-#: distance): 4 looks left it 4-9 cm from every corner in 5 scenes and on a corner's
-#: vertex in 13; 8 looks at most 3.1 cm, on a corner's vertex in 18; 12 looks at most
-#: 3.1 cm, on a corner's vertex in 25; 16 looks no better.
+#: 30 degrees of a full turn. Measured on 32 held scenes (even seeds 0-62, state forced,
+#: integrated at 1/240 s; the cloth vertex nearest the chosen point against the true
+#: corners, material distance): 4 looks left it 4-9 cm from every corner in 5 scenes and
+#: on a corner's vertex in 13; 8 looks at most 3.1 cm, on a corner's vertex in 18; 12
+#: looks at most 3.1 cm, on a corner's vertex in 25; 16 looks no better.
 TURNS_RAD = tuple(np.radians(np.arange(30.0, 360.0, 30.0)))
 
 

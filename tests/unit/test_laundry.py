@@ -144,6 +144,16 @@ def test_bad_spec_arguments(kw, match):
         laundry_spec(**kw)
 
 
+def test_a_scene_needs_whole_substeps():
+    import dataclasses
+
+    from sim.laundry import LaundryScene
+
+    spec = dataclasses.replace(laundry_spec(0), substeps=0)
+    with pytest.raises(ValueError, match="expected spec.substeps a positive integer, got 0"):
+        LaundryScene(spec)
+
+
 # ----------------------------------------------------------------------------- running scene
 
 
@@ -211,3 +221,22 @@ def test_a_turned_view_of_a_held_cloth_sees_it_where_it_hangs():
             assert np.percentile(nearest, 95) < CLOTH_SPACING_M  # on the cloth, as it hangs
     with LaundryScene(laundry_spec(6, state="flat"), noise=False) as scene, pytest.raises(ValueError, match="not held"):
         scene.render_turned(np.pi)
+
+
+@pytest.mark.slow
+def test_layers_stack_and_no_cloth_passes_through_the_table():
+    from sim.laundry import LaundryScene
+
+    pytest.importorskip("pybullet")
+    # The flap of a fold lies on the cloth under it, one layer (two collision margins) higher.
+    with LaundryScene(laundry_spec(0, state="folded", cloth_kind="towel"), noise=False) as folded:
+        start = folded.spec.cloth_vertices_world
+        flap = start[:, 2] > start[:, 2].min() + 0.006  # turned over, lifted by a layer
+        height = folded.clearance_above_support()
+        layer = 2 * folded.spec.material.collision_margin_m
+        assert np.median(height[flap]) - np.median(height[~flap]) == pytest.approx(layer, abs=0.003)
+        assert height.min() > 0
+    # Integrated at 1/240 s, this dropped cloth passed partly through the table.
+    with LaundryScene(laundry_spec(16, state="crumpled"), noise=False) as crumpled:
+        assert crumpled.physics.timestep_s == pytest.approx(crumpled.spec.timestep_s / crumpled.spec.substeps)
+        assert crumpled.clearance_above_support().min() > 0
