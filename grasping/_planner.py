@@ -391,7 +391,8 @@ def _single_layer(points: np.ndarray, inward: np.ndarray, frame: RGBDFrame,
     if np.any(ok):
         step[ok] = step_above_beyond(points[ok], outward[ok], up, frame)
     judged = np.isfinite(step) & (step <= config.max_support_gap_m)
-    term = np.where(judged, np.clip(2.0 - np.where(judged, step, 0.0) / config.layer_thickness_m, 0.0, 1.0), 1.0)
+    term = np.ones(len(points))
+    term[judged] = np.clip(2.0 - step[judged] / config.layer_thickness_m, 0.0, 1.0)
     return term, step
 
 
@@ -485,9 +486,9 @@ def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerCo
                 step_m=float(step[k]),
             )
         )
-    log.debug("%d %s grasp(s), best score %.3f at vertex %d; steps above the surface beyond (mm): %s", len(plans),
-              config.mode, plans[0].score, plans[0].vertex_id,
-              " ".join(f"{t.step_m * 1000:.1f}" for t in terms))
+    if log.isEnabledFor(logging.DEBUG):  # the steps are formatted only for a reader
+        log.debug("%d %s grasp(s), best score %.3f at vertex %d; steps above the surface beyond (mm): %s", len(plans),
+                  config.mode, plans[0].score, plans[0].vertex_id, " ".join(f"{t.step_m * 1000:.1f}" for t in terms))
     return GraspResult(plans=tuple(plans), terms=tuple(terms), reason="", rejected=rejected)
 
 

@@ -96,6 +96,12 @@ def _check_vector(value, n: int, name: str) -> np.ndarray:
     return arr
 
 
+def _check_timestep(where: str, timestep_s) -> float:
+    if not 0 < timestep_s <= 0.02:
+        raise ValueError(f"{where}: expected 0 < timestep_s <= 0.02, got {timestep_s}")
+    return float(timestep_s)
+
+
 def _check_quat(value, name: str) -> np.ndarray:
     q = _check_vector(value, 4, name)
     norm = np.linalg.norm(q)
@@ -222,11 +228,9 @@ class ClothPhysics:
     """
 
     def __init__(self, timestep_s: float = 1.0 / 240.0, gravity_m_s2=(0.0, 0.0, -9.81)):
-        if not 0 < timestep_s <= 0.02:
-            raise ValueError(f"ClothPhysics: expected 0 < timestep_s <= 0.02, got {timestep_s}")
+        self.timestep_s = _check_timestep("ClothPhysics", timestep_s)
         self.pybullet = _pybullet()
         p = self.pybullet
-        self.timestep_s = float(timestep_s)
         self.client = p.connect(p.DIRECT)
         p.resetSimulation(p.RESET_USE_DEFORMABLE_WORLD, physicsClientId=self.client)
         p.setGravity(*_check_vector(gravity_m_s2, 3, "gravity_m_s2"), physicsClientId=self.client)
@@ -241,9 +245,7 @@ class ClothPhysics:
         """Step by ``timestep_s`` from now on. The cloth keeps the spring constants it was
         added with (``add_cloth`` derives them from the step then): a shorter step
         integrates the same cloth more finely."""
-        if not 0 < timestep_s <= 0.02:
-            raise ValueError(f"set_timestep: expected 0 < timestep_s <= 0.02, got {timestep_s}")
-        self.timestep_s = float(timestep_s)
+        self.timestep_s = _check_timestep("set_timestep", timestep_s)
         self.pybullet.setTimeStep(self.timestep_s, physicsClientId=self.client)
 
     def __enter__(self) -> ClothPhysics:

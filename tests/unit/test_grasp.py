@@ -16,6 +16,7 @@ from grasping import GraspPlanner, GraspPlannerConfig, GraspResult, GraspTerms, 
 from grasping import _planner
 from grasping._geometry import project_points
 from ipc.messages import CameraInfo, GraspPlan, MeshEstimate, RGBDFrame
+from sim.camera_model import invert_transform, look_at, transform_points
 
 S = 0.02  # grid spacing, metres
 ROW = S * np.sqrt(3) / 2  # distance between grid rows, metres
@@ -644,13 +645,7 @@ TABLE_CAMERA = CameraInfo(width=640, height=480, K=np.array([[525.0, 0, 319.5], 
 def table_view(elevation_deg=60.0, distance_m=1.1):
     """T_world_cam of a camera looking down at the world origin (z up) from the -y side."""
     e = np.radians(elevation_deg)
-    eye = distance_m * np.array([0.0, -np.cos(e), np.sin(e)])
-    z = -eye / np.linalg.norm(eye)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    T = np.eye(4)
-    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, np.cross(z, x), z, eye
-    return T
+    return look_at(distance_m * np.array([0.0, -np.cos(e), np.sin(e)]), np.zeros(3))
 
 
 def frame_of_layers(T_world_cam, slabs):
@@ -678,8 +673,7 @@ def cloth_on_table(T_world_cam, top_z, half=(0.2, 0.15)):
     W, H = 2 * half[0], 2 * half[1]
     canonical, faces, boundary = hex_mesh(np.array([[0, 0], [W, 0], [W, H], [0, H]]), spacing=0.02)
     world = canonical - [half[0], half[1], 0.0] + [0.0, 0.0, top_z]
-    T_cam_world = np.linalg.inv(T_world_cam)
-    vertices = world @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
+    vertices = transform_points(invert_transform(T_world_cam), world)
     return estimate(canonical, faces, boundary, vertices=vertices), world
 
 
@@ -694,16 +688,14 @@ def test_step_above_beyond_measures_one_and_two_layers(elevation_deg):
     corners_world = np.array([[-0.2, -0.15, layer], [-0.2, 0.15, layer], [0.2, -0.15, 2 * layer], [0.2, 0.15, 2 * layer]])
     outward_world = corners_world * [1.0, 1.0, 0.0]
     outward_world /= np.linalg.norm(outward_world, axis=1, keepdims=True)
-    T_cam_world = np.linalg.inv(T)
-    points = corners_world @ T_cam_world[:3, :3].T + T_cam_world[:3, 3]
-    steps = step_above_beyond(points, outward_world @ T_cam_world[:3, :3].T, T_cam_world[:3, :3] @ [0.0, 0.0, 1.0], frame)
+    points = transform_points(invert_transform(T), corners_world)
+    outward, up = outward_world @ T[:3, :3], T[:3, :3].T @ [0.0, 0.0, 1.0]  # to the camera frame
+    steps = step_above_beyond(points, outward, up, frame)
     np.testing.assert_allclose(steps, [layer, layer, 2 * layer, 2 * layer], atol=0.001)
     # A point beyond the image, or a frame without depth there, is not measured.
-    outside = step_above_beyond(points[:1] + [5.0, 0.0, 0.0], outward_world[:1] @ T_cam_world[:3, :3].T,
-                                T_cam_world[:3, :3] @ [0.0, 0.0, 1.0], frame)
+    outside = step_above_beyond(points[:1] + [5.0, 0.0, 0.0], outward[:1], up, frame)
     no_depth = RGBDFrame(rgb=frame.rgb, depth_m=np.zeros_like(frame.depth_m), camera=TABLE_CAMERA)
-    unmeasured = step_above_beyond(points, outward_world @ T_cam_world[:3, :3].T,
-                                   T_cam_world[:3, :3] @ [0.0, 0.0, 1.0], no_depth)
+    unmeasured = step_above_beyond(points, outward, up, no_depth)
     assert np.isnan(outside).all() and np.isnan(unmeasured).all()
 
 
@@ -715,7 +707,7 @@ def test_corners_at_a_folds_end_rank_after_true_corners():
     cloth, world = cloth_on_table(T, layer)
     frame = frame_of_layers(T, [(-0.2, 0.2, -0.15, 0.15, layer), (0.05, 0.2, -0.15, 0.15, 2 * layer)])
     on_fold = world[:, 0] > 0.05 + 1e-9
-    folded_cloth = MeshEstimate(vertices=cloth.vertices + np.outer(on_fold, np.linalg.inv(T)[:3, :3] @ [0, 0, layer]),
+    folded_cloth = MeshEstimate(vertices=cloth.vertices + np.outer(on_fold, T[:3, :3].T @ [0, 0, layer]),
                                 faces=cloth.faces, boundary=cloth.boundary, canonical=cloth.canonical)
     config = GraspPlannerConfig(mode="corner", T_world_cam=T, layer_thickness_m=0.008)
     result = plan_grasps(folded_cloth, config, frame)
