@@ -326,12 +326,26 @@ class Subscriber:
         publisher counts as gone (three heartbeat periods instead, if its heartbeats
         announce a longer period): logged as a warning and ``on_liveness(False, age_s)``
         is called; when messages flow again, logged and ``on_liveness(True, gap_s)``.
-        ``on_liveness`` runs on the receiver thread: keep it short.
+    on_restart : called as ``on_restart(previous, beat)`` with two Heartbeats when the
+        publisher restarted (a new ``source`` name, or ``seq`` went back) while messages
+        kept flowing. A restart seen in the first heartbeat after a silence is part of
+        that silence's ``on_liveness(True, gap_s)`` and not reported again, so that one
+        event of the stream is reported once.
+        Both callbacks run on the receiver thread, in the order the events happened: keep them short.
     hwm, limits, curve : queue size, decoder caps, CurveClient or None
 
-    Counters (ints, read any time): ``received`` (messages of any type), ``skipped``
-    (data messages replaced by a newer one before ``recv_latest`` took them),
-    ``malformed`` (dropped as ProtocolError, each logged).
+    Every message is decoded on the receiver thread as it arrives, so a malformed one is
+    counted whether or not a newer one replaces it. Counters (ints, read any time):
+    ``received`` (messages of any type), ``skipped`` (data messages, decoded and valid,
+    replaced by a newer one before ``recv_latest`` took them), ``malformed`` (dropped as
+    ProtocolError, each logged), ``reconnects`` (connections lost and opened again).
+
+    Connections: libzmq drops a connection whose peer sends a frame larger than the
+    message cap (``ZMQ_MAXMSGSIZE``) and, for a connecting socket, never reconnects it
+    (it counts as a protocol error). The receiver thread watches the socket's
+    disconnections (a socket monitor) and replaces the socket with a new one connected to
+    the same endpoint, so messages flow again from the same or a restarted publisher
+    within libzmq's reconnect interval (0.1 s).
 
     Arrival times (``time.monotonic()``, None before the first), so a consumer can tell
     how old its data is: ``data_arrived_at`` of the newest data message received,
@@ -345,6 +359,7 @@ class Subscriber:
         accept: tuple[type, ...] | None = None,
         stale_after_s: float = STALE_AFTER_S,
         on_liveness: Callable[[bool, float], None] | None = None,
+        on_restart: Callable[[Heartbeat, Heartbeat], None] | None = None,
         hwm: int = HWM,
         limits: Limits = DEFAULT_LIMITS,
         curve: CurveClient | None = None,
@@ -359,20 +374,37 @@ class Subscriber:
         self.stale_after_s = float(stale_after_s)
         self.limits = limits
         self._on_liveness = on_liveness
-        self._socket = _Socket(zmq.SUB, endpoint, bind=False, limits=limits, curve=curve, hwm=hwm)
-        self._socket.sock.setsockopt(zmq.SUBSCRIBE, b"")
+        self._on_restart = on_restart
+        self._hwm, self._curve = hwm, curve
+        self._socket: _Socket | None = None
+        self._monitor = None
+        self._open()
         self._cond = threading.Condition()
-        self._latest: list | None = None
+        self._latest = None
         self.data_arrived_at: float | None = None
         self.taken_arrived_at: float | None = None
         self._last_heartbeat: Heartbeat | None = None
         self._start = time.monotonic()
         self._last_rx: float | None = None
         self._stale = False
-        self.received = self.skipped = self.malformed = 0
+        self._beat_after_silence = False  # the next heartbeat is the first after a silence
+        self.received = self.skipped = self.malformed = self.reconnects = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"subscriber {endpoint}", daemon=True)
         self._thread.start()
+
+    def _open(self) -> None:
+        """Connect a new SUB socket, subscribed to everything, with a monitor of its disconnections."""
+        self._socket = _Socket(zmq.SUB, self.endpoint, bind=False, limits=self.limits, curve=self._curve, hwm=self._hwm)
+        self._socket.sock.setsockopt(zmq.SUBSCRIBE, b"")
+        self._monitor = self._socket.sock.get_monitor_socket(zmq.EVENT_DISCONNECTED)
+
+    def _close_socket(self) -> None:
+        if self._monitor is not None:
+            self._socket.sock.disable_monitor()
+            self._monitor.close(linger=0)
+            self._monitor = None
+        self._socket.close()
 
     # -- consumer side ------------------------------------------------------
 
@@ -383,22 +415,15 @@ class Subscriber:
         arrived before it and were not taken are skipped, never queued.
         """
         deadline = time.monotonic() + timeout_s
-        while True:
-            with self._cond:
-                while self._latest is None:
-                    remaining = deadline - time.monotonic()
-                    if remaining <= 0 or self._stop.is_set():
-                        return None
-                    self._cond.wait(remaining)
-                frames, self._latest = self._latest, None
-                arrived_at = self.data_arrived_at
-            try:
-                msg = decode(frames, self.limits)
-            except ProtocolError as e:
-                self._count_malformed(e)
-                continue
-            self.taken_arrived_at = arrived_at
-            return msg
+        with self._cond:
+            while self._latest is None:
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or self._stop.is_set():
+                    return None
+                self._cond.wait(remaining)
+            msg, self._latest = self._latest, None
+            self.taken_arrived_at = self.data_arrived_at
+        return msg
 
     @property
     def age_s(self) -> float:
@@ -429,7 +454,7 @@ class Subscriber:
         with self._cond:
             self._cond.notify_all()
         self._thread.join()
-        self._socket.close()
+        self._close_socket()
 
     def __enter__(self) -> Subscriber:
         return self
@@ -440,70 +465,100 @@ class Subscriber:
     # -- receiver thread ----------------------------------------------------
 
     def _run(self) -> None:
-        sock = self._socket.sock
         tick_ms = int(1000 * min(0.05, self.stale_after_s / 4))  # how late a stale report may come
         while not self._stop.is_set():
-            if sock.poll(tick_ms, zmq.POLLIN):
-                # Drain everything waiting: only the newest data message is kept.
-                while True:
-                    try:
-                        frames = _recv_message(sock, self.limits, zmq.NOBLOCK)
-                    except zmq.Again:
-                        break
-                    except ProtocolError as e:
-                        self._count_malformed(e)
-                        continue
-                    self._on_message(frames)
+            sock, monitor = self._socket.sock, self._monitor
+            ready, _, _ = zmq.select([sock, monitor], [], [], tick_ms / 1000.0)
+            if sock in ready:
+                self._drain(sock)
+            if monitor in ready:
+                self._on_disconnected(monitor)
             self._check_stale()
 
-    def _on_message(self, frames: list) -> None:
+    def _drain(self, sock: zmq.Socket) -> None:
+        """Receive everything waiting; only the newest data message is kept."""
+        while True:
+            try:
+                frames = _recv_message(sock, self.limits, zmq.NOBLOCK)
+            except zmq.Again:
+                return
+            except ProtocolError as e:
+                self._arrived()
+                self._count_malformed(e)
+                continue
+            self._on_message(frames)
+
+    def _on_disconnected(self, monitor) -> None:
+        while monitor.poll(0):
+            monitor.recv_multipart()  # the event: ZMQ_EVENT_DISCONNECTED, the only one monitored
+        # Whether the peer went away (libzmq would reconnect) or was dropped for an
+        # oversize frame (libzmq would not), a new socket reconnects in both cases.
+        self._close_socket()
+        self._open()
+        self.reconnects += 1
+        log.info("%s: connection to the publisher lost; reconnecting (%d so far)", self.endpoint, self.reconnects)
+
+    def _arrived(self) -> float:
+        """Note a message's arrival (proof that the publisher lives); returns the time."""
         now = time.monotonic()
         gap = now - (self._last_rx if self._last_rx is not None else self._start)
         self._last_rx = now
         self.received += 1
         if self._stale:
             self._stale = False
+            self._beat_after_silence = True
             log.info("%s: receiving again after %.1f s of silence", self.endpoint, gap)
-            self._notify(True, gap)
+            self._notify(self._on_liveness, True, gap)
+        return now
+
+    def _on_message(self, frames: list) -> None:
+        now = self._arrived()
         try:
             cls = peek_type(frames, self.limits)
-            if cls is Heartbeat:
-                self._on_heartbeat(decode(frames, self.limits))
+            if cls is not Heartbeat and self.accept is not None and cls not in self.accept:
+                log.debug("%s: dropped a %s (not accepted)", self.endpoint, cls.__name__)
                 return
+            msg = decode(frames, self.limits)
         except ProtocolError as e:
             self._count_malformed(e)
             return
-        if self.accept is not None and cls not in self.accept:
-            log.debug("%s: dropped a %s (not accepted)", self.endpoint, cls.__name__)
+        if cls is Heartbeat:
+            self._on_heartbeat(msg)
             return
         with self._cond:
             if self._latest is not None:
                 self.skipped += 1
-            self._latest = frames
+            self._latest = msg
             self.data_arrived_at = now
             self._cond.notify_all()
 
     def _on_heartbeat(self, beat: Heartbeat) -> None:
-        previous = self._last_heartbeat
+        previous, self._last_heartbeat = self._last_heartbeat, beat
+        after_silence, self._beat_after_silence = self._beat_after_silence, False
         if previous is not None and (beat.source != previous.source or beat.seq < previous.seq):
             log.info("%s: publisher %r restarted (heartbeat seq %d after %d)", self.endpoint, beat.source, beat.seq, previous.seq)
-        self._last_heartbeat = beat
+            if not after_silence:
+                self._notify(self._on_restart, previous, beat)
 
     def _check_stale(self) -> None:
         age = time.monotonic() - (self._last_rx if self._last_rx is not None else self._start)
-        if not self._stale and age > self.stale_limit_s:
-            self._stale = True
-            name = f" {self._last_heartbeat.source!r}" if self._last_heartbeat else ""
-            log.warning("%s: no message from publisher%s for %.1f s; gone?", self.endpoint, name, age)
-            self._notify(False, age)
+        if self._stale or age <= self.stale_limit_s:
+            return
+        if self._socket.sock.poll(0, zmq.POLLIN):
+            # Messages wait unread: this thread was starved of CPU, the publisher was not silent.
+            return
+        self._stale = True
+        name = f" {self._last_heartbeat.source!r}" if self._last_heartbeat else ""
+        log.warning("%s: no message from publisher%s for %.1f s; gone?", self.endpoint, name, age)
+        self._notify(self._on_liveness, False, age)
 
-    def _notify(self, alive: bool, seconds: float) -> None:
-        if self._on_liveness is None:
+    def _notify(self, callback, *args) -> None:
+        if callback is None:
             return
         try:
-            self._on_liveness(alive, seconds)
+            callback(*args)
         except Exception:  # a faulty callback must not kill the receiver thread
-            log.exception("%s: on_liveness callback failed", self.endpoint)
+            log.exception("%s: subscriber callback failed", self.endpoint)
 
     def _count_malformed(self, error: ProtocolError) -> None:
         with self._cond:

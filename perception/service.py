@@ -34,6 +34,7 @@ import dataclasses
 import importlib
 import logging
 import math
+import queue
 import threading
 import time
 from collections import deque
@@ -319,13 +320,15 @@ class PerceptionService:
         self._started_at = time.monotonic()
         # (latency_ms, tracking_ms) of the recent estimates published
         self._recent: deque = deque(maxlen=RECENT_ESTIMATES)
-        self._returned = threading.Event()  # set by the subscriber's thread when the source comes back
-        self._last_beat = None
+        # Discontinuities of the frame stream seen by the subscriber's receiver thread (one
+        # line each, in order); the loop hands them to the core between frames.
+        self._source_events: queue.SimpleQueue = queue.SimpleQueue()
+        self._seq_went_back_at = -math.inf  # time.monotonic() of the last frame whose seq went back
         self._viewer = None
         self._closers = []
         try:
             self._frames = Subscriber(config.frames, accept=(RGBDFrame,), stale_after_s=config.stale_after_s,
-                                      on_liveness=self._on_liveness)
+                                      on_liveness=self._on_liveness, on_restart=self._on_restart)
             self._closers.append(self._frames.close)
             self._estimates = Publisher(config.estimates, source="perception", heartbeat_period_s=config.heartbeat_period_s)
             self._closers.append(self._estimates.close)
@@ -354,11 +357,13 @@ class PerceptionService:
         while self._control.serve_once(0.0):
             pass
         frame = self._frames.recv_latest(self.config.poll_s)
+        # After taking the frame: an event that came before the frame is in the queue by now.
         self._check_source()
         if frame is None:
             return None
         arrived_at = self._frames.taken_arrived_at
         if frame.seq < self.core.last_seq and self.core.state in ("tracking", "lost"):
+            self._seq_went_back_at = time.monotonic()
             self.core.discontinuity(f"frame seq went back from {self.core.last_seq} to {frame.seq}")
         estimate = self.core.handle_frame(frame)
         if estimate is not None:
@@ -368,26 +373,30 @@ class PerceptionService:
             self._viewer.show(frame, estimate)
         return estimate
 
+    # Subscriber callbacks: they run on its receiver thread, so they only queue the event.
+
     def _on_liveness(self, alive: bool, seconds: float) -> None:
-        # Runs on the subscriber's receiver thread: only flag it; the loop acts on it.
         if alive:
-            self._returned.set()
+            self._source_events.put(("silence", f"frame source back after {seconds:.1f} s of silence"))
+
+    def _on_restart(self, previous, beat) -> None:
+        self._source_events.put(("restart", f"frame source {beat.source!r} restarted "
+                                            f"(heartbeat seq {beat.seq} after {previous.seq})"))
 
     def _check_source(self) -> None:
-        """Tell the core when the frame source came back after a silence, or restarted (its
-        heartbeat seq went back or its name changed: a new publisher process)."""
-        beat = self._frames.last_heartbeat
-        last, self._last_beat = self._last_beat, beat
-        reason = None
-        if beat is not None and last is not None and beat is not last and (beat.source != last.source or beat.seq < last.seq):
-            reason = f"frame source {beat.source!r} restarted (heartbeat seq {beat.seq} after {last.seq})"
-        if self._returned.is_set():
-            self._returned.clear()
-            reason = reason or "frame source back after a silence"
-            # A restart during the silence is this same event: compare later heartbeats
-            # with the first one seen from now on, not with one from before the silence.
-            self._last_beat = None
-        if reason is not None:
+        """Tell the core of each discontinuity of the frame source: back after a silence, or
+        restarted (its heartbeat seq went back or its name changed: a new publisher process).
+
+        A restarted publisher's first frames can arrive before its first heartbeat: their seq
+        going back is then the same restart, counted once."""
+        while True:
+            try:
+                kind, reason = self._source_events.get_nowait()
+            except queue.Empty:
+                return
+            if kind == "restart" and time.monotonic() - self._seq_went_back_at < self._frames.stale_limit_s:
+                log.info("%s: the discontinuity already seen as seq going back", reason)
+                continue
             self.core.discontinuity(reason)
 
     # -- control ---------------------------------------------------------------------------

@@ -20,6 +20,7 @@ import zmq
 from ipc.codec import encode
 from ipc.messages import (
     CameraInfo,
+    Heartbeat,
     InitialiseRequest,
     MeshEstimate,
     ResetRequest,
@@ -265,6 +266,49 @@ def test_bad_frames_are_counted_and_tracking_goes_on(frames):
             assert 0 < reply.tracking_ms_median <= reply.latency_ms_median <= reply.latency_ms_p99
     finally:
         raw.close()
+
+
+def test_a_source_restarted_after_a_silence_is_one_discontinuity(frames):
+    """A restarted frame publisher whose first frames arrive before its first heartbeat is
+    one discontinuity: one re-initialisation, not a second one when that heartbeat (seq back
+    to 0) comes. Raw sockets fix the order of what arrives."""
+    ctx = zmq.Context.instance()
+    raw = ctx.socket(zmq.PUB)
+    raw.setsockopt(zmq.LINGER, 0)
+    port = raw.bind_to_random_port("tcp://127.0.0.1")
+
+    def beat(seq):
+        return encode(Heartbeat(source="camera", seq=seq, period_s=0.1))
+
+    try:
+        with Running(frames_endpoint=f"tcp://127.0.0.1:{port}", stale_after_s=0.5) as run:
+            for k in range(40):  # the first publisher: heartbeats up to seq 39 among its frames
+                raw.send_multipart(beat(k))
+                raw.send_multipart(encode(dataclasses.replace(frames[k % N], seq=k)))
+                time.sleep(0.05)
+            assert wait_until(lambda: run.status().state == "tracking", 10.0), run.status()
+            assert wait_until(lambda: run.status().source == "stale", 5.0)  # it went silent
+            before = run.status()
+            assert (before.discontinuities, before.reinitialisations) == (0, 0)
+            for k in range(20):  # the restarted publisher: frames first, heartbeats from seq 0 later
+                if k >= 10:
+                    raw.send_multipart(beat(k - 10))
+                raw.send_multipart(encode(dataclasses.replace(frames[k % N], seq=k)))
+                time.sleep(0.05)
+            after = wait_until_status(run, lambda r: r.source == "live" and r.last_seq == 19, 10.0)
+            assert (after.discontinuities, after.reinitialisations) == (1, 1), after
+            assert after.state == "tracking" and after.frames_processed >= 10
+    finally:
+        raw.close()
+
+
+def wait_until_status(run, predicate, timeout_s):
+    deadline = time.monotonic() + timeout_s
+    while True:
+        reply = run.status()
+        if predicate(reply) or time.monotonic() > deadline:
+            return reply
+        time.sleep(0.05)
 
 
 # -- the state machine, without sockets ----------------------------------------------------

@@ -15,7 +15,7 @@ import pytest
 import zmq
 
 from ipc import messages as m
-from ipc.codec import encode
+from ipc.codec import Limits, encode
 from ipc.examples import example_messages
 from ipc.transport import Publisher, Subscriber
 
@@ -127,10 +127,11 @@ def start_publisher(endpoint: str, generation: int) -> tuple[subprocess.Popen, s
 
 def test_publisher_killed_and_restarted(caplog):
     caplog.set_level(logging.INFO, logger="ipc.transport")
-    events = []
+    events, restarts = [], []
     proc, endpoint = start_publisher(ANY_PORT, generation=1)
     try:
-        with Subscriber(endpoint, stale_after_s=0.5, on_liveness=lambda alive, s: events.append((alive, s))) as sub:
+        with Subscriber(endpoint, stale_after_s=0.5, on_liveness=lambda alive, s: events.append((alive, s)),
+                        on_restart=lambda old, new: restarts.append((old, new))) as sub:
             first = sub.recv_latest(timeout_s=10.0)
             assert first is not None and first.timestamp_s == 1.0
             # Ten heartbeats, so that the new process's first ones have a smaller seq.
@@ -150,9 +151,28 @@ def test_publisher_killed_and_restarted(caplog):
             assert events[-1][0] is True and events[-1][1] > 0.5
             assert any("receiving again" in r.getMessage() for r in caplog.records)
             assert wait_until(lambda: any("restarted" in r.getMessage() for r in caplog.records), 3.0)
+            assert restarts == []  # a restart during a silence is that silence's end, reported once
     finally:
         proc.kill()
         proc.wait(timeout=5)
+
+
+def test_a_restart_without_silence_is_reported_once():
+    restarts, events = [], []
+    pub = Publisher(ANY_PORT, source="frames", heartbeat_period_s=0.05)
+    endpoint = pub.endpoint
+    try:
+        with Subscriber(endpoint, stale_after_s=5.0, on_restart=lambda old, new: restarts.append((old, new)),
+                        on_liveness=lambda alive, s: events.append(alive)) as sub:
+            assert wait_until(lambda: sub.last_heartbeat is not None and sub.last_heartbeat.seq >= 5, 5.0)
+            pub.close()
+            pub = Publisher(endpoint, source="frames", heartbeat_period_s=0.05)  # same endpoint, seq from 0 again
+            assert wait_until(lambda: restarts, 5.0)
+            time.sleep(0.3)
+    finally:
+        pub.close()
+    old, new = restarts[0]
+    assert len(restarts) == 1 and new.seq < old.seq and events == []
 
 
 def test_never_heard_publisher_is_reported_stale(caplog):
@@ -215,3 +235,50 @@ def test_closed_subscriber_returns_none_and_bad_arguments_are_named():
     with Publisher(ANY_PORT, source="x") as pub:
         with pytest.raises(ValueError, match="cannot bind"):
             Publisher(pub.endpoint, source="y")  # port taken
+
+
+def test_oversize_messages_do_not_deafen_the_subscriber():
+    """libzmq drops a connection that carries a frame over the cap and never reconnects a
+    connecting socket after that: the Subscriber opens a new socket, so frames from the same
+    publisher, and from one restarted on the same endpoint, arrive again."""
+    limits = Limits(max_message_bytes=2**16, max_array_bytes=2**16)
+    good = encode(FRAME)
+    ctx = zmq.Context.instance()
+
+    def raw_publisher(endpoint):
+        raw = ctx.socket(zmq.PUB)
+        raw.setsockopt(zmq.LINGER, 0)
+        deadline = time.monotonic() + 5.0
+        while True:
+            try:
+                raw.bind(endpoint)
+                return raw
+            except zmq.ZMQError:  # a closed socket's port is released by libzmq's I/O thread a moment later
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.05)
+
+    def resend_until_received(raw, sub, timeout_s=5.0):
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            raw.send_multipart(good)
+            if sub.recv_latest(timeout_s=0.02) is not None:
+                return True
+        return False
+
+    raw = raw_publisher(ANY_PORT)
+    endpoint = raw.getsockopt_string(zmq.LAST_ENDPOINT)
+    try:
+        with Subscriber(endpoint, limits=limits) as sub:
+            assert resend_until_received(raw, sub)
+            for _ in range(3):
+                raw.send(b"x" * (limits.max_message_bytes + 1))
+                assert wait_until(lambda: sub.reconnects > _, 2.0)
+                assert resend_until_received(raw, sub), "deaf after an oversize frame"
+            raw.send(b"x" * (limits.max_message_bytes + 1))
+            raw.close()
+            raw = raw_publisher(endpoint)  # a new publisher on the same endpoint
+            assert resend_until_received(raw, sub), "deaf to a restarted publisher after an oversize frame"
+            assert sub.reconnects >= 4 and sub.malformed == 0
+    finally:
+        raw.close()
