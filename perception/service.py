@@ -65,6 +65,63 @@ WIRE_TYPES = (bool, int, float, str)
 RECENT_ESTIMATES = 100
 
 
+#: Most vertices a mesh may have: a finer spacing is refused when the current object (or,
+#: before any mesh, the area seen in the last frame) would need more. With the paper's
+#: preset a 5,000-vertex mesh takes about 0.3 s a frame on two cores, so a control request
+#: waiting for that frame is still answered within the 1 s of docs/protocol.md.
+MAX_MESH_VERTICES = 5000
+
+#: Most solver work per frame, in vertex-steps: vertices x iterations x conjugate-gradient
+#: steps per iteration (1 for the semi-implicit solver), for tracking (``max_iterations``) and
+#: for the initialisation (``init_iterations``). The paper's preset on a 5,000-vertex mesh.
+MAX_VERTEX_STEPS = 5000 * 10 * 8
+
+#: Area of the hexagonal lattice per vertex, in units of spacing squared (two equilateral
+#: triangles of side 1): the vertex count of an object of area A at spacing s is A / (this * s^2).
+_AREA_PER_VERTEX = math.sqrt(3.0) / 2.0
+
+
+@dataclass(frozen=True)
+class Range:
+    """Allowed values of a numerical parameter: from ``lo`` (excluded when ``lo_open``) to ``hi``."""
+
+    lo: float
+    hi: float
+    lo_open: bool = False
+
+    def __contains__(self, value) -> bool:
+        return (self.lo < value if self.lo_open else self.lo <= value) and value <= self.hi
+
+    def __str__(self) -> str:
+        return f"{'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}]"
+
+
+#: The range of every numerical parameter a SetParametersRequest may set: TrackerConfig's own
+#: lower bounds, and upper bounds that keep the solver's numbers finite and one frame's work
+#: bounded (a frame is tracked while control requests wait).
+PARAMETER_RANGES = {
+    "spacing_m": Range(0.005, 1.0),
+    "lambda_c": Range(0.0, 100.0),
+    "lambda_d": Range(0.0, 100.0),
+    "lambda_b": Range(0.0, 100.0),
+    "alpha": Range(1e-3, 1e3),
+    "max_iterations": Range(1, 100),
+    "cg_iterations": Range(1, 100),
+    "tolerance_m": Range(0.0, 1.0, lo_open=True),
+    "min_predicted_decrease": Range(0.0, 1.0),
+    "max_features": Range(1, 2000),
+    "match_gate_px": Range(0.0, 1000.0, lo_open=True),
+    "match_keep_fraction": Range(0.0, 1.0, lo_open=True),
+    "depth_window_px": Range(1, 31),
+    "depth_outlier_m": Range(0.0, 10.0, lo_open=True),
+    "boundary_gate_m": Range(0.0, 10.0, lo_open=True),
+    "velocity_prediction": Range(0.0, 2.0),
+    "init_iterations": Range(0, 100),
+    "confidence_tol_m": Range(0.0, 10.0, lo_open=True),
+    "lost_confidence": Range(0.0, 1.0),
+}
+
+
 def tracker_parameters(config: TrackerConfig) -> dict:
     """Every TrackerConfig field whose value is a bool, int, float or str, with its value:
     the parameters a SetParametersRequest may change (tuples and nested configs may not)."""
@@ -75,9 +132,11 @@ def tracker_parameters(config: TrackerConfig) -> dict:
 def apply_parameters(config: TrackerConfig, parameters: dict) -> TrackerConfig:
     """A copy of ``config`` with ``parameters`` (name -> value) applied, all or nothing.
 
-    A value must have its parameter's type; an int is accepted for a float parameter.
+    A value must have its parameter's type (an int is accepted for a float parameter) and
+    lie in its ``PARAMETER_RANGES`` range; the solver's work per frame must stay within
+    ``MAX_VERTEX_STEPS`` for the mesh of ``config`` (see ``check_work``).
     raises ValueError naming the unknown names, or the first parameter that cannot be set
-    over the wire, or the first value of the wrong type or range
+    over the wire, or the first value of the wrong type or out of its range
     """
     if any(name not in TrackerConfig.__dataclass_fields__ for name in parameters):
         config_with(config, **parameters)  # raises ValueError naming every unknown name
@@ -98,8 +157,31 @@ def apply_parameters(config: TrackerConfig, parameters: dict) -> TrackerConfig:
             ok = isinstance(value, str)
         if not ok:
             raise ValueError(f"tracker parameter {name!r}: expected {type(current).__name__}, got {type(value).__name__} {value!r}")
+        allowed = PARAMETER_RANGES.get(name)
+        if allowed is not None and value not in allowed:
+            raise ValueError(f"tracker parameter {name!r}: expected a value in {allowed}, got {value!r}")
         changes[name] = value
     return config_with(config, **changes)
+
+
+def check_work(config: TrackerConfig, n_vertices: int | None) -> None:
+    """Refuse a configuration whose mesh of ``n_vertices`` (None: not known) would exceed
+    ``MAX_MESH_VERTICES``, or whose solver work per frame would exceed ``MAX_VERTEX_STEPS``.
+
+    raises ValueError naming the parameter and the largest or smallest value allowed
+    """
+    cg = config.cg_iterations if config.solver == "conjugate" else 1
+    steps = max(config.max_iterations, config.init_iterations) * cg
+    if n_vertices is None:
+        return
+    if n_vertices > MAX_MESH_VERTICES:
+        raise ValueError(f"tracker parameter 'spacing_m': {config.spacing_m:g} m gives about {n_vertices} vertices on the "
+                         f"object, over the budget of {MAX_MESH_VERTICES}; expected a spacing of at least "
+                         f"{config.spacing_m * math.sqrt(n_vertices / MAX_MESH_VERTICES):.4g} m")
+    if n_vertices * steps > MAX_VERTEX_STEPS:
+        raise ValueError(f"tracker parameters 'max_iterations', 'init_iterations' and 'cg_iterations': {n_vertices} vertices x "
+                         f"{steps} steps is {n_vertices * steps} vertex-steps a frame, over the budget of {MAX_VERTEX_STEPS}; "
+                         f"expected at most {MAX_VERTEX_STEPS // max(n_vertices, 1)} steps (iterations x cg_iterations)")
 
 
 @dataclass
@@ -138,6 +220,7 @@ class PerceptionCore:
         self.last_error = ""  # one line: why the last initialisation or frame failed
         self._pending_mask: np.ndarray | None = None
         self._frame_shape: tuple | None = None  # (H, W) of the last frame received
+        self._last_frame: RGBDFrame | None = None
         self._mesh_camera = None  # CameraInfo the mesh was initialised on
         self._logged_kinds: set = set()
 
@@ -165,10 +248,13 @@ class PerceptionCore:
         log.info("reset: idle until an InitialiseRequest")
 
     def set_parameters(self, parameters: dict) -> None:
-        """Change tracker parameters (see ``apply_parameters``); raises ValueError, changing nothing."""
+        """Change tracker parameters (see ``apply_parameters`` and ``check_work``); raises
+        ValueError, changing nothing."""
         old = self.tracker.config
+        new = apply_parameters(old, parameters)
+        check_work(new, self.expected_vertices(new))
         try:
-            self.tracker.set_config(apply_parameters(old, parameters))
+            self.tracker.set_config(new)
         except ValueError:
             # set_config may fail after taking the new config (e.g. an unknown solver name).
             self.tracker.set_config(old)
@@ -178,6 +264,21 @@ class PerceptionCore:
     def parameters(self) -> dict:
         """The parameters SetParametersRequest accepts, with their current values."""
         return tracker_parameters(self.tracker.config)
+
+    def expected_vertices(self, config: TrackerConfig) -> int | None:
+        """About how many vertices a mesh built with ``config`` would have: on the current
+        object if there is a mesh, else on everything seen in the last frame received (no
+        object can be larger); None before any frame."""
+        mesh = self.tracker.mesh
+        if mesh is not None:
+            return math.ceil(mesh.n_vertices * (mesh.spacing_m / config.spacing_m) ** 2)
+        frame = self._last_frame
+        if frame is None:
+            return None
+        # A pixel at depth z covers (z / fx) x (z / fy) square metres facing the camera.
+        z = frame.depth_m[frame.valid_depth()].astype(np.float64)
+        area_m2 = float(np.sum(z * z)) / (frame.camera.fx * frame.camera.fy)
+        return math.ceil(area_m2 / (_AREA_PER_VERTEX * config.spacing_m ** 2))
 
     def discontinuity(self, reason: str) -> None:
         """The frame stream is not a continuation of the frames tracked so far (``reason``, one line)."""
@@ -201,6 +302,7 @@ class PerceptionCore:
         frame was not tracked (idle, or rejected: see ``counters.rejected``)."""
         self.counters.frames_taken += 1
         self._frame_shape = frame.depth_m.shape
+        self._last_frame = frame
         if self.state == "idle":
             return None
         if not frame.valid_depth().any():

@@ -7,6 +7,7 @@ surface is known in every frame. Every wait has a timeout; every test stops what
 
 import dataclasses
 import importlib.util
+import math
 import re
 import sys
 import threading
@@ -189,7 +190,9 @@ def test_control_requests_round_trip(frames):
         assert reply.parameters["lambda_d"] == 0.5 and reply.parameters["max_iterations"] == 4
         for params, message in (({"lambda_x": 1.0}, "unknown tracker parameter.*lambda_x"),
                                 ({"max_iterations": "ten"}, "'max_iterations': expected int, got str"),
-                                ({"alpha": -1.0}, "TrackerConfig.alpha"),
+                                ({"alpha": -1.0}, r"'alpha': expected a value in \[0.001, 1000\], got -1.0"),
+                                ({"lambda_d": 1e300}, r"'lambda_d': expected a value in \[0, 100\], got 1e\+300"),
+                                ({"spacing_m": 0.002}, r"'spacing_m': expected a value in \[0.005, 1\]"),
                                 ({"solver": "newton"}, "solver method"),
                                 ({"segmentation": "on"}, "'segmentation' cannot be set over the wire")):
             with pytest.raises(RemoteError, match=message) as e:
@@ -319,6 +322,42 @@ def test_documented_parameters_exist():
     row = next(line for line in doc.splitlines() if line.startswith("| `parameters` | every tracker parameter"))
     named = {n for n in re.findall(r"`(\w+)`", row) if n != "parameters" and n.islower()}
     assert len(named) >= 10 and named <= set(PerceptionCore().parameters()), named
+
+
+def test_parameters_out_of_range_or_over_budget_are_refused_and_change_nothing(frames):
+    core = PerceptionCore(TrackerConfig.realtime())
+    before = core.parameters()
+    with pytest.raises(ValueError, match=r"'spacing_m': expected a value in \[0.005, 1\], got 0.004"):
+        core.set_parameters({"spacing_m": 0.004})
+    core.handle_frame(frames[0])
+    n = core.tracker.mesh.n_vertices
+    assert core.expected_vertices(core.tracker.config) == n
+    # Quartering the spacing gives about 16 times the vertices: the object's size decides.
+    finer = core.tracker.config.spacing_m * math.sqrt(n / 6000)
+    with pytest.raises(ValueError, match=r"'spacing_m': .* over the budget of 5000; expected a spacing of at least"):
+        core.set_parameters({"spacing_m": finer, "lambda_d": 0.3})
+    with pytest.raises(ValueError, match=r"'max_iterations', 'init_iterations' and 'cg_iterations'"):
+        core.set_parameters({"max_iterations": 100, "cg_iterations": 100})
+    for params, message in (({"lambda_d": 1e300}, r"'lambda_d': expected a value in \[0, 100\]"),
+                            ({"max_features": 10**6}, r"'max_features': expected a value in \[1, 2000\]"),
+                            ({"tolerance_m": 0.0}, r"'tolerance_m': expected a value in \(0, 1\]"),
+                            ({"lost_confidence": 1.5}, r"'lost_confidence': expected a value in \[0, 1\]")):
+        with pytest.raises(ValueError, match=message):
+            core.set_parameters(params)
+    assert core.parameters() == before  # every refused request left the old values in force
+    coarser = core.tracker.config.spacing_m * math.sqrt(n / 4000)
+    core.set_parameters({"spacing_m": coarser, "max_iterations": 20})
+    assert core.parameters()["spacing_m"] == coarser and core.parameters()["max_iterations"] == 20
+
+
+def test_without_a_mesh_the_last_frame_bounds_the_spacing(frames):
+    core = PerceptionCore(TrackerConfig.realtime(), auto_init=False)
+    core.handle_frame(frames[0])  # idle: seen, not tracked; everything visible could be the object
+    seen = core.expected_vertices(core.tracker.config)
+    # The wall behind the sheet fills the image: far more than the sheet's own vertices.
+    assert seen > 2 * 331
+    with pytest.raises(ValueError, match="'spacing_m'"):
+        core.set_parameters({"spacing_m": core.tracker.config.spacing_m * math.sqrt(seen / 6000)})
 
 
 def test_apply_parameters_is_all_or_nothing():
