@@ -53,6 +53,8 @@ from ipc.messages import (
     StatusRequest,
 )
 from ipc.transport import HEARTBEAT_PERIOD_S, STALE_AFTER_S, Publisher, ReplyServer, Subscriber
+from perception.frame_checks import check_frame, mesh_vertices, object_lattice_bound, seen_area_m2, spacing_px
+from perception.segmentation import find_object
 from perception.tracker import MeshTracker, TrackerConfig, TrackingError, config_with
 
 log = logging.getLogger(__name__)
@@ -71,15 +73,15 @@ RECENT_ESTIMATES = 100
 #: waiting for that frame is still answered within the 1 s of docs/protocol.md.
 MAX_MESH_VERTICES = 5000
 
+#: Most lattice points laid over an object when a mesh is built (``object_lattice_bound``),
+#: an upper bound of its vertices: a compact object (a flat rectangle of cloth) keeps about
+#: three quarters of them, so this admits the vertex budget for it and bounds every other.
+LATTICE_BUDGET = 2 * MAX_MESH_VERTICES
+
 #: Most solver work per frame, in vertex-steps: vertices x iterations x conjugate-gradient
 #: steps per iteration (1 for the semi-implicit solver), for tracking (``max_iterations``) and
 #: for the initialisation (``init_iterations``). The paper's preset on a 5,000-vertex mesh.
 MAX_VERTEX_STEPS = 5000 * 10 * 8
-
-#: Area of the hexagonal lattice per vertex, in units of spacing squared (two equilateral
-#: triangles of side 1): the vertex count of an object of area A at spacing s is A / (this * s^2).
-_AREA_PER_VERTEX = math.sqrt(3.0) / 2.0
-
 
 @dataclass(frozen=True)
 class Range:
@@ -223,6 +225,7 @@ class PerceptionCore:
         self._last_frame: RGBDFrame | None = None
         self._mesh_camera = None  # CameraInfo the mesh was initialised on
         self._logged_kinds: set = set()
+        self._rng = np.random.default_rng(0)  # depth segmentation's plane fits, for the size check
 
     # -- requests --------------------------------------------------------------------------
 
@@ -275,10 +278,7 @@ class PerceptionCore:
         frame = self._last_frame
         if frame is None:
             return None
-        # A pixel at depth z covers (z / fx) x (z / fy) square metres facing the camera.
-        z = frame.depth_m[frame.valid_depth()].astype(np.float64)
-        area_m2 = float(np.sum(z * z)) / (frame.camera.fx * frame.camera.fy)
-        return math.ceil(area_m2 / (_AREA_PER_VERTEX * config.spacing_m ** 2))
+        return mesh_vertices(seen_area_m2(frame), config.spacing_m)
 
     def discontinuity(self, reason: str) -> None:
         """The frame stream is not a continuation of the frames tracked so far (``reason``, one line)."""
@@ -305,8 +305,9 @@ class PerceptionCore:
         self._last_frame = frame
         if self.state == "idle":
             return None
-        if not frame.valid_depth().any():
-            return self._reject("no_depth", f"frame {frame.seq}: no valid depth pixel (all 0 or NaN)")
+        problem = check_frame(frame)
+        if problem is not None:
+            return self._reject(*problem)
         try:
             if self.state == "initialising":
                 return self._initialise(frame)
@@ -319,6 +320,7 @@ class PerceptionCore:
     def _initialise(self, frame: RGBDFrame) -> MeshEstimate | None:
         mask = self._pending_mask
         try:
+            self._check_object_size(frame, mask)
             estimate = self.tracker.initialise(frame, mask=mask)
         except TrackingError as e:
             if mask is not None:
@@ -332,6 +334,30 @@ class PerceptionCore:
         self.lost_streak = 0
         self.last_error = ""
         return self._accept(frame, estimate)
+
+    def _check_object_size(self, frame: RGBDFrame, mask: np.ndarray | None) -> None:
+        """Raise TrackingError when the mesh laid over the object (``mask``, or the object
+        depth segmentation finds) could exceed the vertex budget, or one of its triangles
+        the image, before the tracker spends memory and time on it. Segmenting here and again in the tracker costs one segmentation per
+        initialisation."""
+        config = self.tracker.config
+        if mask is None:
+            mask = find_object(frame.depth_m, frame.camera.K, config.segmentation, self._rng)
+        elif mask.shape != frame.depth_m.shape:
+            raise TrackingError(f"mask: expected shape {frame.depth_m.shape} like the frame, got {mask.shape}")
+        mask = mask.astype(bool)
+        edge_px = spacing_px(frame, mask, config.spacing_m)
+        if edge_px > max(frame.camera.width, frame.camera.height):
+            raise TrackingError(f"the object is smaller than one triangle: spacing_m {config.spacing_m:g} spans "
+                                f"{edge_px:.0f} px at its depth, more than the {frame.camera.width}x{frame.camera.height} image")
+        vertices = mesh_vertices(seen_area_m2(frame, mask), config.spacing_m)
+        if vertices > MAX_MESH_VERTICES:
+            raise TrackingError(f"the object is too large for a mesh at spacing_m {config.spacing_m:g}: about {vertices} "
+                                f"vertices, over the budget of {MAX_MESH_VERTICES}")
+        bound = object_lattice_bound(frame, mask, config.spacing_m)
+        if bound > LATTICE_BUDGET:
+            raise TrackingError(f"the object is too large for a mesh at spacing_m {config.spacing_m:g}: up to {bound} "
+                                f"lattice points, over the budget of {LATTICE_BUDGET}")
 
     def _track(self, frame: RGBDFrame) -> MeshEstimate | None:
         cam, ref = frame.camera, self._mesh_camera
