@@ -142,6 +142,7 @@ def run_planner_service(
     stop: threading.Event | None = None,
     poll_s: float = 0.02,
     on_bound=None,
+    curve=None,
 ) -> None:
     """Serve ``service`` on ZeroMQ until ``stop`` is set.
 
@@ -151,17 +152,20 @@ def run_planner_service(
     frames_endpoint : a frame publisher to connect to for the visibility term, or None
     stop : threading.Event; the loop checks it every ``poll_s`` seconds
     on_bound : called with the planner endpoint actually bound, once serving
+    curve : ``ipc.transport.CurveKeys``: the REP socket is a CURVE server, the subscriptions
+        CURVE clients; None: no encryption
 
     Raises ValueError (one line) when an endpoint cannot be bound or connected.
     """
     from ipc.transport import ReplyServer, Subscriber  # zmq only where sockets are made
 
     stop = stop if stop is not None else threading.Event()
+    server, client = (curve.server, curve.client) if curve is not None else (None, None)
     frames = None
-    with Subscriber(estimates_endpoint, accept=(MeshEstimate,)) as estimates:
+    with Subscriber(estimates_endpoint, accept=(MeshEstimate,), curve=client) as estimates:
         try:
             if frames_endpoint is not None:
-                frames = Subscriber(frames_endpoint, accept=(RGBDFrame,))
+                frames = Subscriber(frames_endpoint, accept=(RGBDFrame,), curve=client)
 
             def drain() -> None:
                 # Take what arrived before answering, so a request sees the newest estimate.
@@ -177,15 +181,15 @@ def run_planner_service(
                 drain()
                 return service.handle(request)
 
-            with ReplyServer(planner_endpoint, {GraspRequest: handle}) as server:
-                log.info("planner service: estimates from %s, %sserving %s on %s", estimates_endpoint,
+            with ReplyServer(planner_endpoint, {GraspRequest: handle}, curve=server) as replies:
+                log.info("planner service: estimates from %s, %sserving %s on %s%s", estimates_endpoint,
                          f"frames from {frames_endpoint}, " if frames_endpoint else "", "/".join(service.kinds),
-                         server.endpoint)
+                         replies.endpoint, ", CURVE" if curve is not None else "")
                 if on_bound is not None:
-                    on_bound(server.endpoint)
+                    on_bound(replies.endpoint)
                 while not stop.is_set():
                     drain()
-                    server.serve_once(timeout_s=poll_s)
+                    replies.serve_once(timeout_s=poll_s)
         finally:
             if frames is not None:
                 frames.close()

@@ -34,3 +34,17 @@ FRAMES = tcp(LOOPBACK, FRAMES_PORT)
 ESTIMATES = tcp(LOOPBACK, ESTIMATES_PORT)
 PERCEPTION_CONTROL = tcp(LOOPBACK, PERCEPTION_CONTROL_PORT)
 PLANNER = tcp(LOOPBACK, PLANNER_PORT)
+
+
+def is_loopback(endpoint: str) -> bool:
+    """True when ``endpoint`` cannot be reached from another machine: ``ipc://`` and
+    ``inproc://``, or ``tcp://`` on a loopback address (127.0.0.0/8, ``localhost``, ``[::1]``,
+    the interface ``lo``). A wildcard (``*``, ``0.0.0.0``), another address or an interface
+    name is taken as reachable."""
+    if endpoint.startswith(("ipc://", "inproc://")):
+        return True
+    if not endpoint.startswith("tcp://"):
+        return False
+    host = endpoint[len("tcp://"):].rpartition(":")[0]
+    host = host.split(";")[-1]  # tcp://source;destination: the address bound is the last one
+    return host in ("localhost", "lo", "[::1]", "::1") or host.startswith("127.")

@@ -53,12 +53,14 @@ from ipc.messages import ErrorReply, Heartbeat
 log = logging.getLogger(__name__)
 
 __all__ = [
+    "AUTHORIZED_CLIENTS_DIR",
     "HEARTBEAT_PERIOD_S",
     "HWM",
     "REQUEST_ATTEMPTS",
     "REQUEST_TIMEOUT_S",
     "STALE_AFTER_S",
     "CurveClient",
+    "CurveKeys",
     "CurveServer",
     "Publisher",
     "RemoteError",
@@ -66,6 +68,7 @@ __all__ = [
     "RequestClient",
     "RequestTimeout",
     "Subscriber",
+    "create_key_directory",
 ]
 
 #: Seconds between two heartbeats of a publisher.
@@ -154,6 +157,82 @@ class CurveClient:
             raise ValueError(f"CurveClient: {secret_key_file} holds no secret key")
         server_public, _ = zmq.auth.load_certificate(server_public_key_file)
         return cls(public, secret, server_public)
+
+
+#: Layout of a key directory (``CurveKeys.from_directory``, ``create_key_directory``).
+SERVER_SECRET_FILE = "server.key_secret"
+SERVER_PUBLIC_FILE = "server.key"
+AUTHORIZED_CLIENTS_DIR = "authorized_clients"
+CLIENTS_DIR = "clients"
+
+
+@dataclass(frozen=True)
+class CurveKeys:
+    """The CURVE keys of one toolkit process: ``server`` for the sockets it binds (PUB, REP),
+    ``client`` for those it connects (SUB to another toolkit process's publisher).
+
+    The toolkit's processes share one key pair (the "server" pair): each accepts the clients
+    listed in ``authorized_clients`` and connects to the others as a client with that same
+    pair, so the directory also lists the server's own public key as an authorised client.
+    """
+
+    server: CurveServer
+    client: CurveClient
+
+    @classmethod
+    def from_directory(cls, directory: str | Path) -> CurveKeys:
+        """Load a key directory laid out as ``create_key_directory`` writes it::
+
+            DIR/server.key_secret         the services' key pair (keep it secret)
+            DIR/server.key                its public key (give it to every client)
+            DIR/authorized_clients/*.key  public keys of the clients allowed to connect
+
+        raises ValueError (one line) naming a missing or unreadable file
+        """
+        directory = Path(directory)
+        secret = directory / SERVER_SECRET_FILE
+        authorized = directory / AUTHORIZED_CLIENTS_DIR
+        if not secret.is_file():
+            raise ValueError(f"CURVE keys: {secret} not found (create a key directory with python -m launch_scripts.curve_keys)")
+        if not authorized.is_dir():
+            raise ValueError(f"CURVE keys: {authorized} not found: it holds the public keys of the authorised clients")
+        try:
+            server = CurveServer.from_files(secret, authorized)
+        except (OSError, ValueError) as e:
+            raise ValueError(f"CURVE keys in {directory}: {e}") from None
+        return cls(server, CurveClient(server.public_key, server.secret_key, server.public_key))
+
+
+def create_key_directory(directory: str | Path, clients=("controller",)) -> list[Path]:
+    """Write a key directory for ``CurveKeys.from_directory``: a new server key pair, its
+    public key among the authorised clients, and for each name in ``clients`` a key pair in
+    ``DIR/clients/NAME.key(_secret)`` whose public key is authorised too.
+
+    An existing server key pair or client pair is kept (so that clients stay authorised);
+    returns the files written. Hand ``clients/NAME.key_secret`` and ``server.key`` to the
+    client NAME, then delete its secret file here.
+    raises ValueError for a client name that is not a plain file name
+    """
+    directory = Path(directory)
+    authorized = directory / AUTHORIZED_CLIENTS_DIR
+    client_dir = directory / CLIENTS_DIR
+    written = []
+    for name in clients:
+        if not name or name == "server" or Path(name).name != name or name.startswith("."):
+            raise ValueError(f"client name: expected a plain file name other than 'server', got {name!r}")
+    for folder in (directory, authorized, client_dir):
+        folder.mkdir(parents=True, exist_ok=True)
+    pairs = [(directory, "server"), *((client_dir, name) for name in clients)]
+    for folder, name in pairs:
+        public = folder / f"{name}.key"
+        if not (folder / f"{name}.key_secret").is_file():
+            zmq.auth.create_certificates(folder, name)
+            written += [public, folder / f"{name}.key_secret"]
+            (folder / f"{name}.key_secret").chmod(0o600)
+        copy = authorized / f"{name}.key"
+        copy.write_bytes(public.read_bytes())
+        written.append(copy)
+    return written
 
 
 class _AuthorizedKeys:

@@ -1,4 +1,4 @@
-"""What every launch script shares: one-line usage errors, checked numbers, and stopping on a signal."""
+"""What every launch script shares: one-line usage errors, checked numbers, CURVE options, and stopping on a signal."""
 
 from __future__ import annotations
 
@@ -7,6 +7,8 @@ import math
 import os
 import signal
 import threading
+
+from ipc.endpoints import is_loopback
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -45,6 +47,34 @@ def non_negative_float(text: str) -> float:
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
     return value
+
+
+def add_security_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--curve-keys DIR`` and ``--insecure``, read back by ``curve_keys_from_args``."""
+    g = parser.add_argument_group("security")
+    g.add_argument("--curve-keys", metavar="DIR",
+                   help="encrypt every socket with CURVE and accept only authorised clients: a key directory made by "
+                        "python -m launch_scripts.curve_keys (server.key_secret, authorized_clients/)")
+    g.add_argument("--insecure", action="store_true",
+                   help="allow binding an address other than loopback without --curve-keys (unencrypted, anyone may connect)")
+
+
+def curve_keys_from_args(args, bind_endpoints):
+    """The ``ipc.transport.CurveKeys`` of ``--curve-keys``, or None without it.
+
+    bind_endpoints : the endpoints the process binds; one reachable from another machine
+        (``ipc.endpoints.is_loopback`` false) needs ``--curve-keys`` or ``--insecure``
+    raises ValueError (one line) for a bad key directory or an exposed endpoint
+    """
+    from ipc.transport import CurveKeys  # zmq only for the commands that open sockets
+
+    if args.curve_keys:
+        return CurveKeys.from_directory(args.curve_keys)
+    exposed = [ep for ep in bind_endpoints if not is_loopback(ep)]
+    if exposed and not args.insecure:
+        raise ValueError(f"{exposed[0]} can be reached from other machines: give --curve-keys DIR to encrypt and "
+                         "authenticate, or --insecure to serve it unencrypted to anyone")
+    return None
 
 
 def stop_on_signals(stop: threading.Event, signals=(signal.SIGINT, signal.SIGTERM)) -> None:

@@ -3,8 +3,10 @@
     python -m launch_scripts.perception_service [--frames EP] [--estimates EP] [--control EP]
         [--preset {paper,realtime}] [--features KIND] [tracker options]
         [--no-auto-init] [--reinit-after-lost N] [--viewer | --viewer-save FILE.rrd]
+        [--curve-keys DIR] [--insecure]
 
-Endpoints default to ipc.endpoints (loopback). The protocol and the service's states are
+Endpoints default to ipc.endpoints (loopback); binding an address other machines can reach
+needs --curve-keys (or --insecure). The protocol and the service's states are
 in docs/protocol.md, section "Services". Ctrl-C or SIGTERM stops cleanly. Bad arguments
 end with exit status 2 and one line on stderr.
 """
@@ -19,7 +21,7 @@ import threading
 
 from ipc import endpoints
 from ipc.transport import STALE_AFTER_S
-from launch_scripts.cli import OneLineParser, stop_on_signals
+from launch_scripts.cli import OneLineParser, add_security_arguments, curve_keys_from_args, stop_on_signals
 from perception.features import FEATURE_KINDS
 from perception.service import PerceptionService, ServiceConfig
 from perception.track import config_from_args
@@ -58,6 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--no-correspondence", action="store_true", help="switch the correspondence term off")
     g.add_argument("--no-depth", action="store_true", help="switch the depth term off")
     g.add_argument("--no-boundary", action="store_true", help="switch the boundary term off")
+    add_security_arguments(p)
     return p
 
 
@@ -69,9 +72,10 @@ def main(argv=None) -> int:
     stop_on_signals(stop)
     viewer = "spawn" if args.viewer else args.viewer_save
     try:
+        curve = curve_keys_from_args(args, [args.estimates, args.control])
         config = ServiceConfig(frames=args.frames, estimates=args.estimates, control=args.control,
                                auto_init=not args.no_auto_init, reinit_after_lost=args.reinit_after_lost,
-                               stale_after_s=args.stale_after_s, viewer=viewer)
+                               stale_after_s=args.stale_after_s, viewer=viewer, curve=curve)
         service = PerceptionService(config_from_args(args), config)
     except (ValueError, RuntimeError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)

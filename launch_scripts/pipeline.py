@@ -34,7 +34,7 @@ import time
 
 from ipc import endpoints
 from ipc.messages import MeshEstimate, StatusReply, StatusRequest
-from ipc.transport import RemoteError, RequestClient, RequestTimeout, Subscriber
+from ipc.transport import CurveKeys, RemoteError, RequestClient, RequestTimeout, Subscriber
 from launch_scripts.cli import OneLineParser, stop_on_signals
 
 FREE_PORT = "tcp://127.0.0.1:*"
@@ -59,6 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--print-period-s", type=float, default=1.0, help="seconds between estimate lines (default 1)")
     p.add_argument("--status-period-s", type=float, default=2.0, help="seconds between status lines (default 2)")
     p.add_argument("--duration-s", type=float, help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--curve-keys", metavar="DIR",
+                   help="CURVE on every socket, the children's and this monitor's: a key directory made by "
+                        "python -m launch_scripts.curve_keys")
     p.add_argument("source", nargs=argparse.REMAINDER, help="SOURCE [options] for launch_scripts.publish_frames")
     return p
 
@@ -113,12 +116,13 @@ def describe_status(status: StatusReply) -> str:
     return f"{line}; {status.message}" if status.message else line
 
 
-def monitor(ends: dict, procs: dict, stop: threading.Event, args) -> int:
+def monitor(ends: dict, procs: dict, stop: threading.Event, args, curve: CurveKeys | None = None) -> int:
     """Print estimates and status until ``stop``, ``--duration-s`` or a child's end; returns the exit status."""
     deadline = None if args.duration_s is None else time.monotonic() + args.duration_s
     next_print = next_status = time.monotonic()
-    with Subscriber(ends["estimates"], accept=(MeshEstimate,)) as estimates, \
-            RequestClient(ends["control"], timeout_s=1.0, attempts=1) as control:
+    client = curve.client if curve is not None else None
+    with Subscriber(ends["estimates"], accept=(MeshEstimate,), curve=client) as estimates, \
+            RequestClient(ends["control"], timeout_s=1.0, attempts=1, curve=client) as control:
         while not stop.is_set() and (deadline is None or time.monotonic() < deadline):
             for name, proc in procs.items():
                 if proc.poll() is not None:
@@ -143,6 +147,12 @@ def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     if not args.source:
         build_parser().error("a SOURCE is required (sim, sequence, realsense, kinect or rosbag)")
+    try:
+        curve = CurveKeys.from_directory(args.curve_keys) if args.curve_keys else None
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    security = ["--curve-keys", args.curve_keys] if curve is not None else []
     stop = threading.Event()
     stop_on_signals(stop, (signal.SIGTERM,))
     ports = {"frames": endpoints.FRAMES, "estimates": endpoints.ESTIMATES, "control": endpoints.PERCEPTION_CONTROL}
@@ -151,16 +161,17 @@ def main(argv=None) -> int:
     procs: dict[str, subprocess.Popen] = {}
     try:
         bound = start_child("frame source", "launch_scripts.publish_frames",
-                            [*args.source, "--endpoint", ports["frames"], "--print-endpoint"], procs)
+                            [*args.source, "--endpoint", ports["frames"], "--print-endpoint", *security], procs)
         service_args = ["--frames", bound["frames"], "--estimates", ports["estimates"], "--control", ports["control"],
-                        "--print-endpoints", "--preset", args.preset, "--reinit-after-lost", str(args.reinit_after_lost)]
+                        "--print-endpoints", "--preset", args.preset, "--reinit-after-lost", str(args.reinit_after_lost),
+                        *security]
         service_args += ["--features", args.features] if args.features else []
         service_args += ["--no-auto-init"] if args.no_auto_init else []
         service_args += ["--viewer"] if args.viewer else []
         ends = start_child("perception service", "launch_scripts.perception_service",
                            service_args + shlex.split(args.service_args), procs)
         print(f"pipeline: frames {ends['frames']}, estimates {ends['estimates']}, control {ends['control']}", flush=True)
-        return monitor(ends, procs, stop, args)
+        return monitor(ends, procs, stop, args, curve)
     except KeyboardInterrupt:
         return 0
     except RuntimeError as e:

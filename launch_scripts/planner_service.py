@@ -5,7 +5,7 @@
         [--T-world-cam 16 numbers] [--workspace-min X Y Z] [--workspace-max X Y Z]
         [--min-score S] [--min-confidence C] [--opening-width-m W] [--outline-window-spacings L]
         [--corner-max-angle-deg A] [--layer-thickness-m T] [--weight-single-layer W] [--print-endpoint]
-        [--log-level LEVEL]
+        [--log-level LEVEL] [--curve-keys DIR] [--insecure]
 
 It subscribes to the perception service's MeshEstimate stream (default
 ``ipc.endpoints.ESTIMATES``), optionally to the frame stream for the visibility and
@@ -16,7 +16,8 @@ GraspPlanReply, best first, or ErrorReply: ``not_ready`` before the first estima
 keeps serving after every bad request. ``--bind tcp://127.0.0.1:*`` picks a free port;
 ``--print-endpoint`` prints ``{"planner": ENDPOINT}`` as one JSON line on stdout once
 serving (as ``perception_service --print-endpoints``). SIGINT and SIGTERM stop it
-cleanly (exit status 0). Bad arguments: one line on stderr, exit status 2.
+cleanly (exit status 0). Bad arguments: one line on stderr, exit status 2. Binding an address
+other machines can reach needs --curve-keys (or --insecure).
 """
 
 from __future__ import annotations
@@ -33,7 +34,7 @@ import numpy as np
 from grasping._planner import EDGE_APPROACHES, MODES, GraspPlannerConfig
 from grasping.service import PlannerService, run_planner_service
 from ipc import endpoints
-from launch_scripts.cli import OneLineParser, finite_float, stop_on_signals
+from launch_scripts.cli import OneLineParser, add_security_arguments, curve_keys_from_args, finite_float, stop_on_signals
 
 log = logging.getLogger("launch_scripts.planner_service")
 
@@ -88,6 +89,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--print-endpoint", action="store_true",
                    help='print {"planner": ENDPOINT} as one JSON line on stdout once serving')
     p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    add_security_arguments(p)
     return p
 
 
@@ -116,6 +118,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--kinds: repeated kind in {' '.join(args.kinds)}")
     try:
         service = PlannerService(config_from_args(args), kinds=args.kinds, max_age_s=args.max_estimate_age_s)
+        curve = curve_keys_from_args(args, [args.bind])
     except ValueError as e:
         parser.error(str(e))
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -129,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         run_planner_service(service, estimates_endpoint=args.estimates, planner_endpoint=args.bind,
-                            frames_endpoint=args.frames, stop=stop, on_bound=announce)
+                            frames_endpoint=args.frames, stop=stop, on_bound=announce, curve=curve)
     except ValueError as e:  # an endpoint that cannot be bound or connected
         print(f"{parser.prog}: error: {e}", file=sys.stderr)
         return 2

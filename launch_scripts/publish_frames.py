@@ -8,7 +8,8 @@
 
 Options for every source, after the source's name: --endpoint, --pacing
 {realtime,rate,fast}, --rate-hz, --loop, --max-frames, --start-delay-s,
---heartbeat-period-s, --print-endpoint, --verbose. Ctrl-C or SIGTERM stops cleanly.
+--heartbeat-period-s, --print-endpoint, --verbose, --curve-keys, --insecure (an endpoint other
+machines can reach needs one of the last two). Ctrl-C or SIGTERM stops cleanly.
 Bad arguments, a missing SDK or device end with exit status 2 and one line on stderr.
 """
 
@@ -22,7 +23,14 @@ import threading
 
 from ipc import endpoints
 from ipc.transport import HEARTBEAT_PERIOD_S
-from launch_scripts.cli import OneLineParser, non_negative_float, positive_int, stop_on_signals
+from launch_scripts.cli import (
+    OneLineParser,
+    add_security_arguments,
+    curve_keys_from_args,
+    non_negative_float,
+    positive_int,
+    stop_on_signals,
+)
 from perception.sources import (
     KinectSource,
     Pacing,
@@ -53,6 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--print-endpoint", action="store_true",
                    help='print {"frames": ENDPOINT} as one JSON line on stdout once bound')
     g.add_argument("--verbose", "-v", action="count", default=0, help="-v: info, -vv: debug logging")
+    add_security_arguments(common)
 
     parser = OneLineParser(prog="python -m launch_scripts.publish_frames",
                                      description=__doc__.split("\n\n")[0])
@@ -116,11 +125,12 @@ def main(argv=None) -> int:
             print(json.dumps({"frames": endpoint}), flush=True)
 
     try:
+        curve = curve_keys_from_args(args, [args.endpoint])
         pacing = Pacing(args.pacing or ("fast" if args.source in ("realsense", "kinect") else "realtime"), args.rate_hz)
         with open_source(args) as source:
             run_publisher(source, args.endpoint, pacing=pacing, loop=args.loop, max_frames=args.max_frames,
                           start_delay_s=args.start_delay_s, heartbeat_period_s=args.heartbeat_period_s, stop=stop,
-                          on_bound=bound)
+                          on_bound=bound, curve=curve.server if curve else None)
     except (SourceError, ValueError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

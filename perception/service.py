@@ -52,7 +52,7 @@ from ipc.messages import (
     StatusReply,
     StatusRequest,
 )
-from ipc.transport import HEARTBEAT_PERIOD_S, STALE_AFTER_S, Publisher, ReplyServer, Subscriber
+from ipc.transport import HEARTBEAT_PERIOD_S, STALE_AFTER_S, CurveKeys, Publisher, ReplyServer, Subscriber
 from perception.frame_checks import check_frame, mesh_vertices, object_lattice_bound, seen_area_m2, spacing_px
 from perception.segmentation import find_object
 from perception.tracker import MeshTracker, TrackerConfig, TrackingError, config_with
@@ -417,6 +417,8 @@ class ServiceConfig:
     heartbeat_period_s : seconds between heartbeats of the estimates publisher
     poll_s : longest wait for a frame before control requests are served again
     viewer : None, "spawn" (start a Rerun viewer) or a path to save a Rerun .rrd recording
+    curve : ``ipc.transport.CurveKeys``: the estimates and control sockets are CURVE servers
+        and the frame subscription a CURVE client; None: no encryption
     """
 
     frames: str = endpoints.FRAMES
@@ -428,6 +430,7 @@ class ServiceConfig:
     heartbeat_period_s: float = HEARTBEAT_PERIOD_S
     poll_s: float = 0.02
     viewer: str | None = None
+    curve: CurveKeys | None = None
 
 
 class PerceptionService:
@@ -455,14 +458,16 @@ class PerceptionService:
         self._viewer = None
         self._closers = []
         try:
+            server, client = (config.curve.server, config.curve.client) if config.curve else (None, None)
             self._frames = Subscriber(config.frames, accept=(RGBDFrame,), stale_after_s=config.stale_after_s,
-                                      on_liveness=self._on_liveness, on_restart=self._on_restart)
+                                      on_liveness=self._on_liveness, on_restart=self._on_restart, curve=client)
             self._closers.append(self._frames.close)
-            self._estimates = Publisher(config.estimates, source="perception", heartbeat_period_s=config.heartbeat_period_s)
+            self._estimates = Publisher(config.estimates, source="perception", heartbeat_period_s=config.heartbeat_period_s,
+                                        curve=server)
             self._closers.append(self._estimates.close)
             handlers = {InitialiseRequest: self._on_initialise, ResetRequest: self._on_reset,
                         SetParametersRequest: self._on_set_parameters, StatusRequest: self._on_status}
-            self._control = ReplyServer(config.control, handlers)
+            self._control = ReplyServer(config.control, handlers, curve=server)
             self._closers.append(self._control.close)
             if config.viewer is not None:
                 self._viewer = RerunViewer(config.viewer)
@@ -470,8 +475,8 @@ class PerceptionService:
             self.close()
             raise
         self.endpoints = {"frames": config.frames, "estimates": self._estimates.endpoint, "control": self._control.endpoint}
-        log.info("perception service: frames from %s, estimates on %s, control on %s, %s", config.frames,
-                 self.endpoints["estimates"], self.endpoints["control"], self.core.state)
+        log.info("perception service: frames from %s, estimates on %s, control on %s, %s%s", config.frames,
+                 self.endpoints["estimates"], self.endpoints["control"], self.core.state, ", CURVE" if config.curve else "")
 
     # -- loop ------------------------------------------------------------------------------
 

@@ -6,7 +6,7 @@ import logging
 import threading
 from collections.abc import Callable
 
-from ipc.transport import HEARTBEAT_PERIOD_S, Publisher
+from ipc.transport import HEARTBEAT_PERIOD_S, CurveServer, Publisher
 from perception.sources._base import FrameSource, Pacing, publish_frames
 
 log = logging.getLogger(__name__)
@@ -23,6 +23,7 @@ def run_publisher(
     heartbeat_period_s: float = HEARTBEAT_PERIOD_S,
     stop: threading.Event | None = None,
     on_bound: Callable[[str], None] | None = None,
+    curve: CurveServer | None = None,
 ) -> int:
     """Bind a Publisher on ``endpoint`` and publish the source's frames on it.
 
@@ -33,13 +34,14 @@ def run_publisher(
     heartbeat_period_s : seconds between heartbeats (subscribers call the source gone
         after three silent periods)
     on_bound : called with the endpoint actually bound, before the first frame
+    curve : CurveServer to encrypt and accept only authorised subscribers, or None
     pacing, loop, max_frames, stop : as ``publish_frames``
     returns the number of frames published. The publisher's depth encoding follows
     ``source.depth_scale`` (uint16 units when set, float32 metres otherwise).
     """
     stop = stop if stop is not None else threading.Event()
     with Publisher(endpoint, source=source.name, heartbeat_period_s=heartbeat_period_s,
-                   depth_scale=source.depth_scale) as publisher:
+                   depth_scale=source.depth_scale, curve=curve) as publisher:
         if on_bound is not None:
             on_bound(publisher.endpoint)
         if start_delay_s > 0 and stop.wait(start_delay_s):
