@@ -2,7 +2,7 @@
 
     python -m launch_scripts.publish_frames sim --scene poster_bend [--seed S] [--no-noise] [--frames N]
     python -m launch_scripts.publish_frames sequence SEQ
-    python -m launch_scripts.publish_frames realsense [--width W --height H --fps F] [--serial SN]
+    python -m launch_scripts.publish_frames realsense [--width W --height H --fps F] [--serial SN | --recording FILE.db3]
     python -m launch_scripts.publish_frames kinect [--colour-resolution 720p] [--depth-mode nfov_unbinned]
     python -m launch_scripts.publish_frames rosbag BAG --rgb-topic T --depth-topic T --info-topic T
 
@@ -83,6 +83,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=positive_int, default=480)
     p.add_argument("--fps", type=positive_int, default=30)
     p.add_argument("--serial", help="device serial number (default: the first camera)")
+    p.add_argument("--recording", metavar="FILE",
+                   help="play a recording (.db3, or .bag from SDKs before 2.56) instead of a camera, at its recorded pace")
 
     p = sub.add_parser("kinect", parents=[common], help="an Azure Kinect (pyk4a)")
     p.add_argument("--colour-resolution", choices=KinectSource.COLOUR_RESOLUTIONS, default="720p")
@@ -106,7 +108,7 @@ def open_source(args):
     if args.source == "sequence":
         return SequenceSource(args.path)
     if args.source == "realsense":
-        return RealSenseSource(args.width, args.height, args.fps, serial=args.serial)
+        return RealSenseSource(args.width, args.height, args.fps, serial=args.serial, recording=args.recording)
     if args.source == "kinect":
         return KinectSource(args.colour_resolution, args.depth_mode, args.fps, device_id=args.device)
     return RosbagSource(args.path, args.rgb_topic, args.depth_topic, args.info_topic)

@@ -1,15 +1,24 @@
-"""Frames from an Intel RealSense camera through pyrealsense2 (extra "realsense").
+"""Frames from an Intel RealSense camera, or a recording of one, through pyrealsense2 (extra "realsense").
 
 The depth stream is aligned to the colour stream with ``rs.align(rs.stream.color)``, so
 both images share the colour camera's intrinsics, which become the frames' CameraInfo
 (with the colour lens distortion). Depth units come from the device's depth sensor
 (``get_depth_scale()``: metres per unit, 0.001 on most D400 cameras), never assumed.
+
+A recording (``.db3`` from SDK 2.56 on, ``.bag`` from older ones, as the RealSense Viewer
+or ``rs.recorder`` write them) plays back through the SDK's playback device at its recorded
+pace, like the camera. Its streams are read sensor by sensor and paired by timestamp (the
+SDK's frame syncer, in ``rs.pipeline``, drops the first frames of a recording and pairs a
+colour frame with the previous depth frame when it plays faster than recorded); each pair
+becomes a frameset for ``rs.align`` as from a camera.
 """
 
 from __future__ import annotations
 
+import datetime
 import logging
 from collections.abc import Iterator
+from pathlib import Path
 
 import numpy as np
 
@@ -77,39 +86,49 @@ def frame_from_realsense(colour_frame, depth_frame, camera: CameraInfo, depth_un
 
 
 class RealSenseSource(FrameSource):
-    """A RealSense camera streaming colour (rgb8) and depth (z16) at one size and rate.
+    """A RealSense camera streaming colour (rgb8) and depth (z16) at one size and rate, or a
+    recording of one.
 
-    width, height : pixels of both streams (the depth image is aligned to colour anyway)
-    fps : frames per second the device is asked for
+    width, height : pixels of both streams (the depth image is aligned to colour anyway);
+        ignored for a recording, which has its own
+    fps : frames per second the device is asked for; ignored for a recording
     serial : device serial number, or None for the first camera found
     timeout_s : seconds to wait for a frame before giving up with SourceError
+    recording : path of a ``.db3`` or ``.bag`` recording to play instead of a camera; then
+        ``frames()`` is one pass over it (a finite source) and ``name`` is
+        ``realsense:FILE``
 
     ``depth_scale`` (units per metre on the wire) is 1 / the device's depth unit, so the
     raw depth values travel unchanged.
     """
 
+    RECORDING_SUFFIXES = (".db3", ".bag")
+
     def __init__(self, width: int = 640, height: int = 480, fps: int = 30, serial: str | None = None,
-                 timeout_s: float = 5.0):
+                 timeout_s: float = 5.0, recording: str | Path | None = None):
         rs = optional_import("pyrealsense2", extra="realsense", feature="the RealSense source")
         self._rs = rs
-        self.name = "realsense" if serial is None else f"realsense:{serial}"
         self.timeout_ms = int(1000 * timeout_s)
+        self._pipeline = None
+        self._streaming = False
+        self._playback: _Playback | None = None
+        if recording is not None:
+            self._open_recording(Path(recording))
+            return
+        self.name = "realsense" if serial is None else f"realsense:{serial}"
         config = rs.config()
         if serial is not None:
             config.enable_device(serial)
         config.enable_stream(rs.stream.depth, width, height, rs.format.z16, fps)
         config.enable_stream(rs.stream.color, width, height, rs.format.rgb8, fps)
         self._pipeline = rs.pipeline()
-        self._streaming = False
         try:
             profile = self._pipeline.start(config)
         except RuntimeError as e:
             raise SourceError(f"RealSense: cannot stream colour and depth at {width}x{height}, {fps} fps ({e})") from None
         self._streaming = True
         try:
-            self.depth_unit_m = float(profile.get_device().first_depth_sensor().get_depth_scale())
-            if not self.depth_unit_m > 0:
-                raise SourceError(f"RealSense: the depth sensor reports a depth scale of {self.depth_unit_m} m per unit")
+            self.depth_unit_m = _depth_unit(profile.get_device().first_depth_sensor())
             intrinsics = profile.get_stream(rs.stream.color).as_video_stream_profile().get_intrinsics()
             self.camera = camera_info_from_realsense(intrinsics, rs)
         except BaseException:
@@ -120,7 +139,28 @@ class RealSenseSource(FrameSource):
         log.info("RealSense: %dx%d at %d fps, depth unit %.6g m, fx %.1f", width, height, fps, self.depth_unit_m,
                  self.camera.fx)
 
+    def _open_recording(self, path: Path) -> None:
+        if path.suffix not in self.RECORDING_SUFFIXES:
+            raise SourceError(f"RealSense: expected a recording ending in {' or '.join(self.RECORDING_SUFFIXES)}, got {path}")
+        if not path.is_file():
+            raise SourceError(f"RealSense: recording {path} not found")
+        self.name = f"realsense:{path.name}"
+        self.recording = path
+        playback = _Playback(self._rs, path, self.timeout_ms)  # reads the streams' descriptions; plays nothing yet
+        try:
+            self.depth_unit_m = playback.depth_unit_m
+            self.camera = camera_info_from_realsense(playback.colour_intrinsics, self._rs)
+        finally:
+            playback.close()
+        self.depth_scale = 1.0 / self.depth_unit_m
+        self._align = self._rs.align(self._rs.stream.color)
+        log.info("RealSense recording %s: %dx%d, depth unit %.6g m, fx %.1f", path, self.camera.width, self.camera.height,
+                 self.depth_unit_m, self.camera.fx)
+
     def frames(self) -> Iterator[RGBDFrame]:
+        if self._pipeline is None:
+            yield from self._recorded_frames()
+            return
         rs = self._rs
         while True:
             try:
@@ -134,7 +174,123 @@ class RealSenseSource(FrameSource):
                 continue
             yield frame_from_realsense(colour, depth, self.camera, self.depth_unit_m, rs)
 
+    def _recorded_frames(self) -> Iterator[RGBDFrame]:
+        """One pass over the recording, from its start."""
+        self._playback = playback = _Playback(self._rs, self.recording, self.timeout_ms)
+        try:
+            playback.start()
+            for frameset in playback.framesets():
+                aligned = self._align.process(frameset)
+                yield frame_from_realsense(aligned.get_color_frame(), aligned.get_depth_frame(), self.camera,
+                                           self.depth_unit_m, self._rs)
+        finally:
+            playback.close()
+            self._playback = None
+
     def close(self) -> None:
         if self._streaming:  # stop() on a stopped pipeline raises
             self._streaming = False
             self._pipeline.stop()
+        if self._playback is not None:
+            self._playback.close()
+            self._playback = None
+
+
+def _depth_unit(depth_sensor) -> float:
+    """Metres per depth unit of a depth sensor; raises SourceError unless positive."""
+    unit = float(depth_sensor.get_depth_scale())
+    if not unit > 0:
+        raise SourceError(f"RealSense: the depth sensor reports a depth scale of {unit} m per unit")
+    return unit
+
+
+class _Playback:
+    """One pass of a RealSense recording: the playback device's colour and depth sensors,
+    each into a small frame queue, and their frames paired by timestamp.
+
+    rs : the pyrealsense2 module; path : the recording; timeout_ms : longest wait for a frame
+    """
+
+    QUEUE_FRAMES = 4  # per stream: real-time playback and a consumer that keeps up need few
+
+    def __init__(self, rs, path: Path, timeout_ms: int):
+        self._rs, self.timeout_ms = rs, timeout_ms
+        try:
+            self.device = rs.context().load_device(str(path))
+        except RuntimeError as e:
+            raise SourceError(f"RealSense: cannot play {path} ({e})") from None
+        self.playback = self.device.as_playback()
+        self.playback.set_real_time(True)  # at the recorded pace, as the camera delivered it
+        self._sensors, self._queues, self._profiles = [], {}, {}
+        for sensor in self.device.query_sensors():
+            for profile in sensor.get_stream_profiles():
+                kind = profile.stream_type()
+                if kind in (rs.stream.color, rs.stream.depth) and kind not in self._profiles:
+                    self._profiles[kind] = (sensor, profile)
+        missing = [name for kind, name in ((rs.stream.color, "colour"), (rs.stream.depth, "depth")) if kind not in self._profiles]
+        if missing:
+            raise SourceError(f"RealSense: {path} has no {' and no '.join(missing)} stream")
+        colour = self._profiles[rs.stream.color][1].as_video_stream_profile()
+        self.colour_intrinsics = colour.get_intrinsics()
+        self.fps = colour.fps() or 30
+        self.depth_unit_m = _depth_unit(self._profiles[rs.stream.depth][0].as_depth_sensor())
+        self._pending: list = []
+        self._playing = False
+        self._combine = rs.processing_block(lambda frame, source: source.frame_ready(
+            source.allocate_composite_frame(self._pending)))
+        self._combined = rs.frame_queue(1, keep_frames=True)
+        self._combine.start(self._combined)
+
+    def start(self) -> None:
+        """Play from the start. The playback runs as soon as one sensor starts: it is held
+        until both listen, so that no stream loses its first frames."""
+        rs = self._rs
+        self.playback.pause()
+        for kind, (sensor, profile) in self._profiles.items():
+            queue = rs.frame_queue(self.QUEUE_FRAMES, keep_frames=True)
+            sensor.open(profile)
+            sensor.start(queue)
+            self._sensors.append(sensor)
+            self._queues[kind] = queue
+        self.playback.seek(datetime.timedelta(0))
+        self.playback.resume()
+
+    def _next(self, kind):
+        """The next frame of stream ``kind``, or None at the end of the recording."""
+        waited_ms = 0
+        while True:
+            ok, frame = self._queues[kind].try_wait_for_frame(50)
+            if ok:
+                self._playing = True
+                return frame
+            # The playback reports "stopped" until its first frame too: the end comes after one.
+            if self._playing and self.playback.current_status() == self._rs.playback_status.stopped:
+                frame = self._queues[kind].poll_for_frame()
+                return frame if frame else None
+            waited_ms += 50
+            if waited_ms > self.timeout_ms:
+                raise SourceError(f"RealSense: no frame of the recording within {self.timeout_ms} ms")
+
+    def framesets(self):
+        """Framesets of a depth and a colour frame taken at the same time (within half a colour
+        frame period), in order, until the end of the recording; unpaired frames are skipped."""
+        rs = self._rs
+        tolerance_ms = 500.0 / self.fps
+        colour, depth = self._next(rs.stream.color), self._next(rs.stream.depth)
+        while colour is not None and depth is not None:
+            gap_ms = colour.get_timestamp() - depth.get_timestamp()
+            if gap_ms > tolerance_ms:
+                depth = self._next(rs.stream.depth)
+            elif gap_ms < -tolerance_ms:
+                colour = self._next(rs.stream.color)
+            else:
+                self._pending[:] = [depth, colour]
+                self._combine.invoke(colour)
+                yield self._combined.wait_for_frame(self.timeout_ms).as_frameset()
+                colour, depth = self._next(rs.stream.color), self._next(rs.stream.depth)
+
+    def close(self) -> None:
+        for sensor in self._sensors:
+            sensor.stop()
+            sensor.close()
+        self._sensors = []
