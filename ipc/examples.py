@@ -1,4 +1,4 @@
-"""One example of every message type, and the worked example of docs/protocol.md.
+"""One example of every message type, the worked example of docs/protocol.md, and a client.
 
 ``example_messages()`` builds a small, deterministic instance of every message class:
 tests round-trip them, and an implementer in another language can encode them to get
@@ -6,6 +6,11 @@ test vectors. Running this module prints the byte-level worked example (a reques
 its reply, as frames, hex dumps and annotated msgpack) that docs/protocol.md embeds::
 
     python -m ipc.examples > /tmp/example.md
+
+``request_with_retries`` is a request/reply client written with nothing but pyzmq and the
+codec, step by step as docs/protocol.md section 12 describes it for any language: it
+recovers from a lost reply, a dead server and a request libzmq refuses as oversize (no reply
+comes; see docs/protocol.md section 7) by closing its socket and opening a new one.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ import numpy as np
 from ipc import codec
 from ipc import messages as m
 
-__all__ = ["example_messages", "worked_example"]
+__all__ = ["example_messages", "request_with_retries", "worked_example"]
 
 
 def example_messages() -> dict[type, object]:
@@ -79,14 +84,14 @@ def example_messages() -> dict[type, object]:
         m.GraspPlanReply(request_id=3, candidates=(corner, boundary), estimate_seq=42),
         m.InitialiseRequest(request_id=7, mask=mask),
         m.ResetRequest(request_id=8),
-        m.SetParametersRequest(request_id=9, parameters={"lambda_D": 0.6, "max_iterations": 20, "use_klt": True, "detector": "sift"}),
+        m.SetParametersRequest(request_id=9, parameters={"lambda_d": 0.6, "max_iterations": 20, "use_depth": True, "features": "sift"}),
         m.StatusRequest(request_id=10),
         m.StatusReply(
             request_id=10,
             state="tracking",
             frames_processed=120,
             last_seq=42,
-            parameters={"lambda_D": 0.6, "max_iterations": 20},
+            parameters={"lambda_d": 0.6, "max_iterations": 20},
             message="frame 17: no valid depth pixel (all 0 or NaN)",
             uptime_s=61.5,
             source="live",
@@ -200,7 +205,7 @@ def worked_example() -> str:
     request = examples[m.InitialiseRequest]
     # From a service started idle (--no-auto-init) 2.5 s ago: frames came in, none was
     # tracked, so the measurements of estimates are nil.
-    reply = m.StatusReply(request_id=request.request_id, state="initialising", parameters={"lambda_D": 0.6},
+    reply = m.StatusReply(request_id=request.request_id, state="initialising", parameters={"lambda_d": 0.6},
                           uptime_s=2.5, source="live", frame_age_s=0.03125, frames_received=42)
     # inline_max_bytes=0 sends the 12-byte mask as a buffer frame, to show the framing.
     request_frames = codec.encode(request, inline_max_bytes=0)
@@ -217,6 +222,47 @@ def worked_example() -> str:
             "<!-- end of generated example -->",
         ]
     )
+
+
+# ---------------------------------------------------------------------------
+# A client, as docs/protocol.md section 12 describes it
+
+
+def request_with_retries(endpoint: str, frames: list, *, timeout_s: float = 1.0, attempts: int = 3, curve_keys=None):
+    """Send one request's frames to a REP service and return the reply's frames ("lazy pirate").
+
+    endpoint : e.g. ``tcp://robot-pc:5562``
+    frames : the request as ``codec.encode`` gives it (header, then buffers)
+    timeout_s, attempts : wait this long for each reply; send at most this many times
+    curve_keys : None, or (client public key, client secret key, server public key), each a
+        40-byte Z85 key
+    returns the reply's frames (decode them with ``codec.decode``)
+    raises TimeoutError after ``attempts`` attempts without a reply
+
+    A REQ socket cannot send twice without a reply in between, so after a timeout the socket
+    is closed (linger 0: the unsent request is dropped) and a new one connects. A reply that
+    comes too late goes to the closed socket and is lost, which is harmless: every request
+    of the protocol can be repeated. This is also how a client recovers from a request with
+    a frame larger than the server's ``ZMQ_MAXMSGSIZE``: libzmq drops the connection before
+    the server sees the request, no reply comes, and the next request, on a new connection,
+    is answered.
+    """
+    import zmq  # here only: the rest of this module needs no ZeroMQ
+
+    context = zmq.Context.instance()
+    for _ in range(attempts):
+        sock = context.socket(zmq.REQ)
+        sock.setsockopt(zmq.LINGER, 0)
+        if curve_keys is not None:
+            sock.curve_publickey, sock.curve_secretkey, sock.curve_serverkey = curve_keys
+        sock.connect(endpoint)
+        try:
+            sock.send_multipart(frames)
+            if sock.poll(int(1000 * timeout_s), zmq.POLLIN):
+                return sock.recv_multipart()
+        finally:
+            sock.close(linger=0)
+    raise TimeoutError(f"{endpoint}: no reply after {attempts} attempts of {timeout_s:g} s")
 
 
 if __name__ == "__main__":

@@ -10,8 +10,10 @@ SOURCE and its options are those of ``python -m launch_scripts.publish_frames``,
 Two child processes are started (the frame publisher, then the perception service) and
 this process monitors them: it prints a summary of the newest estimate every
 --print-period-s and the service's status every --status-period-s. By default every
-endpoint is a free loopback port, printed at the start; --default-endpoints uses the
-fixed ones of ipc.endpoints so that a controller can connect to known ports.
+endpoint is a free loopback port; --default-endpoints uses the fixed ones of ipc.endpoints
+so that a controller can connect to known ports. The first line on stdout is the endpoints
+as one JSON object, {"frames": ..., "estimates": ..., "control": ...}; the lines after it
+are for a person.
 
 Ctrl-C (or SIGTERM) stops everything; when a child ends, the others are stopped too.
 Children never outlive this process: they are stopped on every exit path, and on Linux
@@ -170,7 +172,8 @@ def main(argv=None) -> int:
         service_args += ["--viewer"] if args.viewer else []
         ends = start_child("perception service", "launch_scripts.perception_service",
                            service_args + shlex.split(args.service_args), procs)
-        print(f"pipeline: frames {ends['frames']}, estimates {ends['estimates']}, control {ends['control']}", flush=True)
+        # The first line, as perception_service --print-endpoints prints it: a controller parses it.
+        print(json.dumps({name: ends[name] for name in ("frames", "estimates", "control")}), flush=True)
         return monitor(ends, procs, stop, args, curve)
     except KeyboardInterrupt:
         return 0

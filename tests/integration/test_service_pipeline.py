@@ -1,6 +1,7 @@
 """``python -m launch_scripts.pipeline``: one command runs source, service and monitor; Ctrl-C
 stops everything, and the children die with the parent even when it is killed."""
 
+import json
 import os
 import signal
 import subprocess
@@ -82,7 +83,8 @@ def test_ctrl_c_stops_the_pipeline_cleanly(sequence):
     try:
         lines = read_until(proc, "estimate seq", 60.0)
         lines += read_until(proc, "status: tracking", 30.0)
-        assert any(line.startswith("pipeline: frames tcp://127.0.0.1:") for line in lines)
+        ends = json.loads(lines[0])  # the first line: the endpoints, as documented
+        assert sorted(ends) == ["control", "estimates", "frames"] and ends["control"].startswith("tcp://127.0.0.1:")
         kids = children_of(proc.pid)
         assert len(kids) == 2
         os.killpg(proc.pid, signal.SIGINT)

@@ -282,3 +282,33 @@ def test_oversize_messages_do_not_deafen_the_subscriber():
             assert sub.reconnects >= 4 and sub.malformed == 0
     finally:
         raw.close()
+
+
+def test_malformed_messages_in_a_burst_are_each_counted_not_skipped():
+    """Messages are decoded as they arrive: malformed ones among frames the consumer never
+    took are counted as malformed, and only valid frames count as skipped. The malformed
+    ones here have a valid header (an RGBDFrame) and a buffer a byte short."""
+    ctx = zmq.Context.instance()
+    raw = ctx.socket(zmq.PUB)
+    raw.setsockopt(zmq.LINGER, 0)
+    port = raw.bind_to_random_port("tcp://127.0.0.1")
+    good = encode(FRAME)
+    try:
+        with Subscriber(f"tcp://127.0.0.1:{port}", accept=(m.RGBDFrame,)) as sub:
+            deadline = time.monotonic() + 5.0
+            while sub.received == 0 and time.monotonic() < deadline:  # until the subscription has arrived
+                raw.send_multipart(good)
+                time.sleep(0.01)
+            assert sub.recv_latest(timeout_s=1.0) is not None
+            start = sub.received
+            short = [bytes(f) for f in encode(FRAME, inline_max_bytes=0)]
+            short[-1] = short[-1][:-1]
+            for _ in range(20):
+                raw.send_multipart(short)
+                raw.send_multipart(good)
+                time.sleep(0.002)  # slower than the receiver thread: nothing is lost to the queue limit
+            assert wait_until(lambda: sub.received - start == 40, 5.0), sub.received - start
+            assert sub.malformed == 20 and sub.skipped == 19
+            assert sub.recv_latest(timeout_s=0.1) is not None
+    finally:
+        raw.close()

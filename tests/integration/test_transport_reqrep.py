@@ -10,8 +10,8 @@ import pytest
 import zmq
 
 from ipc import messages as m
-from ipc.codec import decode, encode
-from ipc.examples import example_messages
+from ipc.codec import Limits, decode, encode
+from ipc.examples import example_messages, request_with_retries
 from ipc.transport import RemoteError, ReplyServer, RequestClient, RequestTimeout
 
 pytestmark = pytest.mark.timeout(60)
@@ -168,3 +168,23 @@ def test_bad_arguments_are_named():
     server.close()
     with pytest.raises(ValueError, match="server is closed"):
         server.serve_once()
+
+
+def test_oversize_requests_error_reply_or_no_reply_and_the_example_client_recovers():
+    """Over the message cap in several frames: an ErrorReply naming the limit. One frame over
+    it: libzmq drops the connection before the server sees the request, so no reply comes;
+    the example client (ipc.examples.request_with_retries) then reconnects and is answered."""
+    limits = Limits(max_message_bytes=2**16, max_array_bytes=2**16)
+    with Serving(HANDLERS, limits=limits) as srv:
+        frames = [*encode(m.StatusRequest(request_id=1)), b"x" * 40_000, b"y" * 40_000]
+        reply = decode(request_with_retries(srv.endpoint, frames, timeout_s=2.0))
+        assert isinstance(reply, m.ErrorReply) and reply.code == "protocol"
+        assert reply.message == f"message of {sum(map(len, frames))} bytes exceeds the limit of 65536"
+        many = [*encode(m.StatusRequest(request_id=2)), *([b"z"] * 40)]
+        reply = decode(request_with_retries(srv.endpoint, many, timeout_s=2.0))
+        assert reply.code == "protocol" and "41 frames, over the limit of 32" in reply.message
+
+        with pytest.raises(TimeoutError, match="no reply after 2 attempts"):
+            request_with_retries(srv.endpoint, [b"x" * (limits.max_message_bytes + 1)], timeout_s=0.3, attempts=2)
+        reply = decode(request_with_retries(srv.endpoint, encode(m.StatusRequest(request_id=3)), timeout_s=2.0))
+        assert isinstance(reply, m.StatusReply) and reply.request_id == 3
