@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -156,6 +157,20 @@ def test_service_core_without_sockets():
     assert len(reply.candidates) == 4 and reply.estimate_seq == 2
     with pytest.raises(ValueError, match=r"Expected kinds: distinct values among .*, got \('corner', 'corner'\)"):
         PlannerService(kinds=("corner", "corner"))
+
+
+def test_kinds_as_documented():
+    """docs/protocol.md: kinds default to all three, which compete on score; a kind this planner
+    does not serve is invalid, not not_ready (retrying cannot help)."""
+    assert GraspRequest().kinds == ("corner", "boundary", "highest")
+    estimate = rectangle_estimate(seq=3)
+    every = PlannerService().handle(GraspRequest(estimate=estimate, max_candidates=100))
+    scores = [c.score for c in every.candidates]
+    assert scores == sorted(scores, reverse=True) and {"corner", "boundary"} <= {c.kind for c in every.candidates}
+    reply = PlannerService(kinds=("corner",)).handle(GraspRequest(kinds=("boundary",), estimate=estimate))
+    assert isinstance(reply, ErrorReply) and reply.code == "invalid" and "serves corner grasps, not boundary" in reply.message
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "protocol.md").read_text()
+    assert "`invalid` when none of the requested `kinds` is served by this planner" in doc
 
 
 def test_a_stale_estimate_is_not_ready_but_a_request_may_bring_its_own():

@@ -19,6 +19,7 @@ import pytest
 import zmq
 
 from ipc.codec import encode
+from ipc.examples import example_messages
 from ipc.messages import (
     CameraInfo,
     Heartbeat,
@@ -32,7 +33,16 @@ from ipc.messages import (
 )
 from ipc.transport import Publisher, RemoteError, RequestClient, Subscriber
 from perception import TrackerConfig
-from perception.service import PerceptionCore, PerceptionService, RerunViewer, ServiceConfig, apply_parameters
+from perception.service import (
+    MAX_MESH_VERTICES,
+    MAX_VERTEX_STEPS,
+    PARAMETER_RANGES,
+    PerceptionCore,
+    PerceptionService,
+    RerunViewer,
+    ServiceConfig,
+    apply_parameters,
+)
 from perception.sources import FrameSource, Pacing, publish_frames
 from tests.render import frame_of, grid_surface, plane_points, texture
 
@@ -81,7 +91,7 @@ def wait_until(predicate, timeout_s, poll_s=0.02):
 def documented_reject_kinds():
     """The kinds of the perception service's table of rejected frames in docs/protocol.md."""
     doc = (Path(__file__).resolve().parents[2] / "docs" / "protocol.md").read_text()
-    table = doc[doc.index("| kind | cause |"):doc.index("`messages_malformed`.")]
+    table = doc[doc.index("| kind | cause |"):doc.index("`messages_malformed`, each")]
     return re.findall(r"^\| `(\w+)` \|", table, flags=re.M)
 
 
@@ -322,6 +332,26 @@ def test_documented_parameters_exist():
     row = next(line for line in doc.splitlines() if line.startswith("| `parameters` | every tracker parameter"))
     named = {n for n in re.findall(r"`(\w+)`", row) if n != "parameters" and n.islower()}
     assert len(named) >= 10 and named <= set(PerceptionCore().parameters()), named
+
+
+def test_documented_ranges_and_budgets_are_the_services():
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "protocol.md").read_text()
+    table = doc[doc.index("#### Parameters"):doc.index("Two budgets keep")]
+    documented = {}
+    for names, allowed in re.findall(r"((?:`\w+`(?:, )?)+) \| ([\[(][-\d., ]+\])", table):
+        for name in re.findall(r"`(\w+)`", names):
+            documented[name] = allowed
+    assert documented == {name: str(allowed) for name, allowed in PARAMETER_RANGES.items()}
+    assert set(PARAMETER_RANGES) <= set(PerceptionCore().parameters())
+    budgets = doc[doc.index("Two budgets keep"):doc.index("#### StatusReply from the perception service")]
+    assert f"at most {MAX_MESH_VERTICES:,}" in budgets and f"at most {MAX_VERTEX_STEPS:,}" in budgets
+
+
+def test_the_example_parameters_are_accepted_by_the_service():
+    examples = example_messages()
+    core = PerceptionCore()
+    core.set_parameters(examples[SetParametersRequest].parameters)
+    assert set(examples[StatusReply].parameters) <= set(core.parameters())
 
 
 def test_parameters_out_of_range_or_over_budget_are_refused_and_change_nothing(frames):

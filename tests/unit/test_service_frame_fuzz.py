@@ -8,7 +8,9 @@ reach the core: the codec refuses them, which the first test checks on the wire 
 
 import gc
 import math
+import re
 import tracemalloc
+from pathlib import Path
 
 import msgpack
 import numpy as np
@@ -24,7 +26,12 @@ from tests.fuzz_frames import CAMERA, FrameFuzzer, sheet_frames
 pytestmark = pytest.mark.timeout(300)
 
 SEED = 20261130
-NAMED_KINDS = {"no_depth", "bad_depth", "bad_camera", "camera_changed", "init_failed", "tracker"}
+DOC = (Path(__file__).resolve().parents[2] / "docs" / "protocol.md").read_text()
+#: The kinds of rejected frames docs/protocol.md lists for the perception service, but "internal" (a bug).
+NAMED_KINDS = set(re.findall(r"^\| `(\w+)` \|", DOC[DOC.index("| kind | cause |"):DOC.index("`messages_malformed`, each")],
+                             flags=re.M)) - {"internal"}
+#: What an estimate's energies may hold (docs/protocol.md, MeshEstimate.energies).
+ENERGY_NAMES = {"smoothness", "correspondence", "depth", "boundary", "total", "inliers"}
 
 
 def frame_bytes(depth: np.ndarray) -> list[bytes]:
@@ -68,12 +75,14 @@ def test_the_checks_name_what_is_wrong():
 
 def fuzz(core: PerceptionCore, n: int) -> dict:
     """Feed ``n`` events of the fuzzer to ``core``, as the service would; returns what happened."""
-    outcome = {"tracked": 0, "refused": 0, "idle": 0}
+    outcome = {"tracked": 0, "refused": 0, "idle": 0, "energies": set()}
     for kind, value in FrameFuzzer(SEED, core.parameters()).events(n):
         if kind == "frame":
             outcome["idle"] += core.state == "idle"
-            if core.handle_frame(value) is not None:
+            estimate = core.handle_frame(value)
+            if estimate is not None:
                 outcome["tracked"] += 1
+                outcome["energies"].update(estimate.energies)
         else:
             try:
                 if kind == "initialise":
@@ -90,8 +99,11 @@ def test_every_frame_is_tracked_or_rejected_with_a_named_kind():
     outcome = fuzz(core, 400)
     rejected = core.counters.rejected
     assert "internal" not in rejected, core.last_error
+    assert NAMED_KINDS >= {"no_depth", "bad_depth", "bad_camera", "camera_changed", "init_failed", "tracker"}
     assert set(rejected) <= NAMED_KINDS
-    # The fuzz reaches every check and still tracks good frames between the bad ones.
+    assert outcome["energies"] <= ENERGY_NAMES and {"smoothness", "total", "inliers"} <= outcome["energies"]
+    energies_row = next(line for line in DOC.splitlines() if line.startswith("| `energies` |"))
+    assert all(f"`{name}`" in energies_row for name in ENERGY_NAMES)    # The fuzz reaches every check and still tracks good frames between the bad ones.
     assert {"no_depth", "bad_depth", "bad_camera", "camera_changed", "init_failed"} <= set(rejected), rejected
     assert outcome["tracked"] > 20 and outcome["refused"] > 0, outcome
     assert core.counters.frames_taken == core.counters.processed + sum(rejected.values()) + outcome["idle"]
