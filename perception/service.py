@@ -15,10 +15,14 @@ Two layers:
   measure for the ``StatusReply`` (frame arrivals, latency) and an optional live viewer
   (rerun-sdk).
 
-Bad input never stops the service: a frame the tracker rejects, a frame without any
-valid depth, a frame from another camera (size or intrinsics), a failed initialisation
-or a tracker failure is logged once per kind, counted (``StatusReply.rejected_by_kind``)
-and skipped; malformed messages are dropped by the subscriber and counted.
+Bad input never stops the service: a frame without any valid depth, with depth or
+intrinsics no sensor gives (``perception.frame_checks``), from another camera (size or
+intrinsics), a frame the tracker rejects, a failed initialisation (an object too large
+for the mesh budget among the reasons) or a tracker failure is logged once per kind,
+counted (``StatusReply.rejected_by_kind``) and skipped; malformed messages are dropped by
+the subscriber and counted. Parameters are checked against ``PARAMETER_RANGES`` and the
+budgets ``MAX_MESH_VERTICES`` and ``MAX_VERTEX_STEPS`` before they apply, so that one
+frame's work, which control requests wait for, stays bounded.
 
 Automatic (re-)initialisation by depth segmentation, when ``auto_init`` is on (default):
 at start; after a discontinuity of the frame stream (the source was silent for the
