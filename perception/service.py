@@ -3,7 +3,8 @@
 It subscribes to ``RGBDFrame`` on the frames endpoint (newest frame only), tracks, and
 publishes one ``MeshEstimate`` per frame processed on the estimates endpoint; on the
 control endpoint it answers ``InitialiseRequest``, ``ResetRequest``,
-``SetParametersRequest`` and ``StatusRequest`` with a ``StatusReply`` (or ``ErrorReply``).
+``SetParametersRequest``, ``OccluderMaskRequest`` and ``StatusRequest`` with a
+``StatusReply`` (or ``ErrorReply``).
 
 Two layers:
 
@@ -45,6 +46,7 @@ from ipc import endpoints
 from ipc.messages import (
     InitialiseRequest,
     MeshEstimate,
+    OccluderMaskRequest,
     ResetRequest,
     RGBDFrame,
     SetParametersRequest,
@@ -58,6 +60,9 @@ log = logging.getLogger(__name__)
 
 #: Value types a tracker parameter must have to be read and set over the wire.
 WIRE_TYPES = (bool, int, float, str)
+
+#: Occluder masks sent for frames not yet received that the service keeps at most.
+MAX_PENDING_OCCLUDERS = 64
 
 #: Estimates over which StatusReply summarises latency and tracking time: a few seconds
 #: at camera rates, so the figures follow a change of load, and enough for a 99th percentile.
@@ -136,6 +141,8 @@ class PerceptionCore:
         self.lost_streak = 0  # consecutive lost or rejected frames while tracking
         self.last_error = ""  # one line: why the last initialisation or frame failed
         self._pending_mask: np.ndarray | None = None
+        self._standing_occluder: np.ndarray | None = None  # (H, W) bool, for every frame
+        self._occluders_by_seq: dict[int, np.ndarray] = {}  # seq -> (H, W) bool, for one frame
         self._frame_shape: tuple | None = None  # (H, W) of the last frame received
         self._mesh_camera = None  # CameraInfo the mesh was initialised on
         self._logged_kinds: set = set()
@@ -152,6 +159,33 @@ class PerceptionCore:
         self.state = "initialising"
         self.last_error = ""
         log.info("initialising on the next frame (%s)", "mask" if mask is not None else "depth segmentation")
+
+    def set_occluder_mask(self, mask: np.ndarray | None, seq: int = -1) -> None:
+        """Where a known occluder covers frame ``seq`` (-1: every frame from now on).
+
+        mask : (H, W) uint8 or bool, non-zero on the occluder; None clears it
+        raises ValueError if the mask's size differs from that of the frames received"""
+        if mask is not None and self._frame_shape is not None and mask.shape != self._frame_shape:
+            raise ValueError(f"OccluderMaskRequest.mask: expected shape {self._frame_shape} like the frames, got {mask.shape}")
+        occluder = None if mask is None else np.asarray(mask) != 0
+        if seq < 0:
+            self._standing_occluder = occluder
+        elif occluder is None:
+            self._occluders_by_seq.pop(seq, None)
+        else:
+            if seq not in self._occluders_by_seq and len(self._occluders_by_seq) >= MAX_PENDING_OCCLUDERS:
+                del self._occluders_by_seq[min(self._occluders_by_seq)]  # the oldest frame's mask
+            self._occluders_by_seq[seq] = occluder
+
+    def _with_occluders(self, frame: RGBDFrame) -> RGBDFrame:
+        """``frame`` with its own occluder mask, the standing one and the one sent for its seq combined."""
+        for seq in [s for s in self._occluders_by_seq if s < frame.seq]:
+            del self._occluders_by_seq[seq]  # those frames have passed
+        masks = [m for m in (frame.occluder_mask, self._standing_occluder, self._occluders_by_seq.pop(frame.seq, None))
+                 if m is not None and m.shape == frame.depth_m.shape]
+        if not masks or (len(masks) == 1 and masks[0] is frame.occluder_mask):
+            return frame
+        return dataclasses.replace(frame, occluder_mask=np.logical_or.reduce(masks))
 
     def request_reset(self) -> None:
         """Drop the mesh; stay idle until ``request_initialise``."""
@@ -204,6 +238,7 @@ class PerceptionCore:
             return None
         if not frame.valid_depth().any():
             return self._reject("no_depth", f"frame {frame.seq}: no valid depth pixel (all 0 or NaN)")
+        frame = self._with_occluders(frame)
         try:
             if self.state == "initialising":
                 return self._initialise(frame)
@@ -330,7 +365,8 @@ class PerceptionService:
             self._estimates = Publisher(config.estimates, source="perception", heartbeat_period_s=config.heartbeat_period_s)
             self._closers.append(self._estimates.close)
             handlers = {InitialiseRequest: self._on_initialise, ResetRequest: self._on_reset,
-                        SetParametersRequest: self._on_set_parameters, StatusRequest: self._on_status}
+                        SetParametersRequest: self._on_set_parameters, OccluderMaskRequest: self._on_occluder_mask,
+                        StatusRequest: self._on_status}
             self._control = ReplyServer(config.control, handlers)
             self._closers.append(self._control.close)
             if config.viewer is not None:
@@ -402,6 +438,10 @@ class PerceptionService:
 
     def _on_set_parameters(self, request: SetParametersRequest) -> StatusReply:
         self.core.set_parameters(request.parameters)
+        return self.status(request.request_id)
+
+    def _on_occluder_mask(self, request: OccluderMaskRequest) -> StatusReply:
+        self.core.set_occluder_mask(request.mask, request.seq)
         return self.status(request.request_id)
 
     def _on_status(self, request: StatusRequest) -> StatusReply:

@@ -333,3 +333,31 @@ def test_viewer_records_frames_and_meshes_or_names_its_extra(frames, tmp_path, m
     monkeypatch.setitem(sys.modules, "rerun", None)
     with pytest.raises(RuntimeError, match=r"live viewer needs the Python module 'rerun'.*clothkit\[viewer\]"):
         RerunViewer()
+
+
+def test_occluder_masks_reach_the_tracker_combined_and_only_for_their_frame(frames):
+    core = PerceptionCore(TrackerConfig.realtime())
+    seen = []
+    real_track = core.tracker.track
+    core.tracker.track = lambda frame: seen.append(frame.occluder_mask) or real_track(frame)
+    h, w = frames[0].depth_m.shape
+    left, top = np.zeros((h, w), np.uint8), np.zeros((h, w), bool)
+    left[:, :10] = 1
+    top[:5] = True
+    with pytest.raises(ValueError, match=r"OccluderMaskRequest.mask: expected shape \(240, 320\)"):
+        core.handle_frame(frames[0])  # initialises, and fixes the frame size
+        core.set_occluder_mask(np.ones((10, 10), np.uint8), seq=3)
+    core.set_occluder_mask(left)  # standing
+    core.set_occluder_mask(top, seq=2)
+    core.set_occluder_mask(top, seq=7)  # never arrives: dropped once a later frame passed
+    own = np.zeros((h, w), bool)
+    own[-1] = True
+    for seq in (1, 2, 3):
+        frame = dataclasses.replace(frames[seq], seq=seq, occluder_mask=own if seq == 3 else None)
+        assert core.handle_frame(frame) is not None
+    assert np.array_equal(seen[0], left > 0)
+    assert np.array_equal(seen[1], (left > 0) | top)
+    assert np.array_equal(seen[2], (left > 0) | own)
+    core.set_occluder_mask(None)  # clears the standing mask
+    core.handle_frame(dataclasses.replace(frames[4], seq=8))
+    assert seen[3] is None  # seq 7's mask was dropped when frame 8 came
