@@ -193,22 +193,25 @@ def find_object(depth_m: np.ndarray, K: np.ndarray, cfg: SegmentationConfig = Se
     return _grow(labels == best, candidate)
 
 
-def outline(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: float = 0.03) -> np.ndarray:
+def outline(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: float = 0.03,
+            occluder_mask: np.ndarray | None = None) -> np.ndarray:
     """(H, W) bool: the object's own outline pixels.
 
     Pixels of ``mask`` with a 4-neighbour outside it, except where the object is cut by the
-    image border or hidden behind something nearer (an occluding hand or gripper): those
-    contour pixels say nothing about where the object ends.
+    image border or hidden behind something nearer (an occluding hand or gripper, found by
+    depth or given as ``occluder_mask`` (H, W) bool): those contour pixels say nothing
+    about where the object ends.
     """
     m = mask.astype(bool)
     h, w = m.shape
     d = np.where(valid_depth(depth_m), depth_m, np.inf)
     pad_m = np.pad(m, 1, constant_values=True)  # the border is not an outline
     pad_d = np.pad(d, 1, constant_values=np.inf)
+    pad_o = np.pad(np.zeros((h, w), bool) if occluder_mask is None else occluder_mask.astype(bool), 1)
     out = np.zeros_like(m)
     for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
         nb_m = pad_m[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
         nb_d = pad_d[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
-        occluded = nb_d < d - occlusion_margin_m
+        occluded = (nb_d < d - occlusion_margin_m) | pad_o[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
         out |= m & ~nb_m & ~occluded
     return out

@@ -30,7 +30,7 @@ from threadpoolctl import ThreadpoolController
 
 from ipc.messages import MeshEstimate, RGBDFrame
 from perception.camera import Undistorter, pixel_index, project
-from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm
+from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, MotionPriorTerm
 from perception.features import make_correspondences, resolve_kind
 from perception.initial_mesh import InitialisationError, mesh_from_mask, place_mesh
 from perception.mesh import CanonicalMesh, barycentric_matrix
@@ -38,6 +38,7 @@ from perception.observation import Observation, grey_of, observe
 from perception.raster import faces_mask
 from perception.segmentation import SegmentationConfig, find_object, segment_tracked
 from perception.solver import SemiImplicitSolver
+from perception.visibility import NO_DEPTH, VISIBLE, classify_vertices, visible_faces
 
 log = logging.getLogger(__name__)
 
@@ -98,6 +99,8 @@ class TrackerConfig:
     outlier_radii_m : inlier radius of each solver stage; a match farther from its mesh point is ignored
     depth_window_px : depth is averaged over this window on the object (noise)
     depth_outlier_m : depth residuals larger than this are ignored (occlusion, edges)
+    occlusion_margin_m : a vertex is hidden when the measured surface at its pixel is this much nearer
+    lambda_m : weight of the motion prior that carries hidden and unobserved vertices
     boundary_gate_m : boundary vertices farther than this from the outline are left alone
     velocity_prediction : fraction of the last inter-frame motion added to predict the next frame
     init_iterations : smoothing iterations when the mesh is laid on the first frame
@@ -127,6 +130,8 @@ class TrackerConfig:
     outlier_radii_m: tuple = (0.05, 0.02)
     depth_window_px: int = 5
     depth_outlier_m: float = 0.08
+    occlusion_margin_m: float = 0.08
+    lambda_m: float = 1.0
     boundary_gate_m: float = 0.06
     velocity_prediction: float = 0.5
     init_iterations: int = 10
@@ -136,12 +141,12 @@ class TrackerConfig:
 
     def __post_init__(self):
         positive = ("spacing_m", "alpha", "tolerance_m", "match_gate_px", "depth_outlier_m", "boundary_gate_m",
-                    "confidence_tol_m")
+                    "confidence_tol_m", "occlusion_margin_m")
         for name in positive:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a positive number, got {v!r}")
-        for name in ("lambda_c", "lambda_d", "lambda_b", "velocity_prediction", "min_predicted_decrease"):
+        for name in ("lambda_c", "lambda_d", "lambda_b", "lambda_m", "velocity_prediction", "min_predicted_decrease"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a non-negative number, got {v!r}")
@@ -195,7 +200,9 @@ class MeshTracker:
         self._corr = None
         self._g0 = None
         self._faces_out = None
+        self._edges = None
         self.last_observation: Observation | None = None
+        self.last_feature_xy = np.zeros((0, 2))  # (P, 2) pixels of the last frame's correspondences
 
     @property
     def initialised(self) -> bool:
@@ -282,6 +289,7 @@ class MeshTracker:
         self.mesh = mesh
         self._camera = frame.camera
         self._solver = self._make_solver(mesh)
+        self._edges = mesh.edges()
         self._faces_out = self._orient_faces(mesh.faces, V0)
 
         boundary = self._boundary_term(obs, np.zeros(len(mesh.boundary)))
@@ -322,18 +330,26 @@ class MeshTracker:
         # Features on the object's very edge describe the background as much as the object.
         return cv2.erode(mask.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
 
-    def _boundary_term(self, obs: Observation, g0: np.ndarray) -> BoundaryTerm:
-        return BoundaryTerm(self.mesh.boundary, g0, obs.outline_cam, obs.mask, obs.K, self.config.boundary_gate_m)
+    def _boundary_term(self, obs: Observation, g0: np.ndarray, observed: np.ndarray | None = None) -> BoundaryTerm:
+        """The boundary term over the boundary vertices that are ``observed`` ((N,) bool; all if None)."""
+        ids = self.mesh.boundary
+        keep = np.ones(len(ids), bool) if observed is None else observed[ids]
+        return BoundaryTerm(ids[keep], g0[keep], obs.outline_cam, obs.mask, obs.K, self.config.boundary_gate_m)
 
-    def _data_terms(self, obs: Observation, correspondences: CorrespondenceTerm | None):
+    def _data_terms(self, obs: Observation, correspondences: CorrespondenceTerm | None,
+                    observed: np.ndarray | None = None, prior: np.ndarray | None = None):
+        """(weight, term) pairs for one frame. observed : (N,) bool, the vertices the data may
+        pull (all if None); the others are held by the motion prior around ``prior`` (N, 3)."""
         cfg = self.config
         terms = []
         if correspondences is not None and cfg.use_correspondence and len(correspondences.targets):
             terms.append((cfg.lambda_c, correspondences))
         if cfg.use_depth:
-            terms.append((cfg.lambda_d, DepthTerm(obs.range_m, obs.K, cfg.depth_outlier_m)))
+            terms.append((cfg.lambda_d, DepthTerm(obs.range_m, obs.K, cfg.depth_outlier_m, vertex_mask=observed)))
         if cfg.use_boundary and len(obs.outline_cam):
-            terms.append((cfg.lambda_b, self._boundary_term(obs, self._g0)))
+            terms.append((cfg.lambda_b, self._boundary_term(obs, self._g0, observed)))
+        if observed is not None and prior is not None and cfg.lambda_m > 0 and not observed.all():
+            terms.append((cfg.lambda_m, MotionPriorTerm.around(self._edges, ~observed, prior)))
         return terms
 
     # -- track ---------------------------------------------------------------------------
@@ -377,22 +393,32 @@ class MeshTracker:
         cfg = self.config
         K = frame.camera.K
         faces = self.mesh.faces
+        occluder = frame.occluder_mask
         z = V_pred[:, 2]
         mask = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation)
+        if occluder is not None:
+            mask &= ~occluder
         if not mask.any():
             log.debug("frame %d: object not seen", frame.seq)
             self._V_prev, self._V = self._V, self._V.copy()
             self.last_observation = None
-            return self._estimate(frame, self._V, {}, 0, 0.0, t0, lost=True)
+            state = classify_vertices(self._V, frame.depth_m, K, cfg.occlusion_margin_m, occluder)
+            return self._estimate(frame, self._V, {}, 0, 0.0, t0, lost=True, visible=state == VISIBLE)
+        state = classify_vertices(V_pred, frame.depth_m, K, cfg.occlusion_margin_m, occluder)
+        # Hidden and out-of-view vertices have no data; one without depth may have slid off
+        # the object (the boundary term brings it back) or sit on a hole in the depth.
+        observed = (state == VISIBLE) | (state == NO_DEPTH)
         obs = observe(frame, mask, cfg.depth_window_px, grey=grey)
         corr = None
         if prepared is not None:
-            fid, bary, xy = self._corr.match(obs.grey, self._feature_mask(mask), V_pred, faces, K, prepared.result())
+            fid, bary, xy = self._corr.match(obs.grey, self._feature_mask(mask), V_pred, faces, K, prepared.result(),
+                                             face_ok=visible_faces(state, faces))
             pts, has = obs.points_at(xy)
+            self.last_feature_xy = xy[has]
             if has.any():
                 B = barycentric_matrix(fid[has], bary[has], faces, self.mesh.n_vertices)
                 corr = CorrespondenceTerm(B, pts[has], np.ones(int(has.sum())))
-        terms = self._data_terms(obs, corr)
+        terms = self._data_terms(obs, corr, observed, V_pred)
         V = V_pred
         stages = cfg.outlier_radii_m if corr is not None else (None,)
         budget = max(1, cfg.max_iterations // len(stages))
@@ -410,7 +436,8 @@ class MeshTracker:
         self.last_observation = obs
         if corr is not None:
             energies["inliers"] = float(corr.weights.sum())
-        return self._estimate(frame, V, energies, iterations, self._confidence(V, frame), t0)
+        state = classify_vertices(V, frame.depth_m, K, cfg.occlusion_margin_m, occluder)
+        return self._estimate(frame, V, energies, iterations, self._confidence(V, frame), t0, visible=state == VISIBLE)
 
     # -- outputs -------------------------------------------------------------------------
 
@@ -434,14 +461,14 @@ class MeshTracker:
         conf = agree.sum() / evidence
         return float(conf * min(1.0, evidence / (0.2 * len(V))))
 
-    def _estimate(self, frame, V, energies, iterations, confidence, t0, lost=None) -> MeshEstimate:
+    def _estimate(self, frame, V, energies, iterations, confidence, t0, lost=None, visible=None) -> MeshEstimate:
         if lost is None:
             lost = confidence < self.config.lost_confidence
         return MeshEstimate(
             vertices=V, faces=self._faces_out, boundary=self.mesh.boundary, canonical=self.mesh.canonical,
             timestamp_s=frame.timestamp_s, seq=frame.seq, energies=energies, iterations=iterations,
             confidence=float(np.clip(confidence, 0.0, 1.0)), lost=lost,
-            timing_ms=(time.perf_counter() - t0) * 1000.0, frame_id=frame.camera.frame_id)
+            timing_ms=(time.perf_counter() - t0) * 1000.0, frame_id=frame.camera.frame_id, visible=visible)
 
 
 def config_with(config: TrackerConfig, **changes) -> TrackerConfig:
