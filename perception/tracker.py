@@ -29,10 +29,11 @@ import numpy as np
 from threadpoolctl import ThreadpoolController
 
 from ipc.messages import MeshEstimate, RGBDFrame
-from perception.camera import Undistorter, pixel_index, project
+from perception.camera import Undistorter, pixel_index, project, rays
 from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, MotionPriorTerm
 from perception.features import make_correspondences, resolve_kind
 from perception.initial_mesh import InitialisationError, mesh_from_mask, place_mesh
+from perception.coarse import MIN_RESPONSE, FrameMemory
 from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
 from perception.raster import faces_mask
@@ -201,6 +202,10 @@ class MeshTracker:
         self._g0 = None
         self._faces_out = None
         self._edges = None
+        self._visible = None  # (N,) bool, the vertices seen in the last frame
+        self._memory = FrameMemory()
+        self.coarse_corrections = 0  # frames predicted otherwise than by constant velocity
+        self.last_motion_scores: dict = {}
         self.last_observation: Observation | None = None
         self.last_feature_xy = np.zeros((0, 2))  # (P, 2) pixels of the last frame's correspondences
 
@@ -305,10 +310,12 @@ class MeshTracker:
                                               cfg.match_keep_fraction, cfg.match_previous_frame)
             self._corr.initialise(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
         self.last_observation = obs
+        self._memory.push(self._memory.small(obs.grey))
         conf = self._confidence(V, frame)
+        visible = classify_vertices(V, frame.depth_m, frame.camera.K, cfg.occlusion_margin_m, frame.occluder_mask) == VISIBLE
         log.info("initialised mesh: %d vertices, %d faces, %d boundary, %d features", mesh.n_vertices,
                  len(mesh.faces), len(mesh.boundary), self._corr.n_model if self._corr else 0)
-        return self._estimate(frame, V, res.energies, res.iterations, conf, t0)
+        return self._estimate(frame, V, res.energies, res.iterations, conf, t0, visible=visible)
 
     def _make_solver(self, mesh: CanonicalMesh) -> SemiImplicitSolver:
         cfg = self.config
@@ -371,11 +378,13 @@ class MeshTracker:
         cfg = self.config
         K = frame.camera.K
         faces = self.mesh.faces
-        V_pred = self.predict()
+        grey = grey_of(frame)
+        small = self._memory.small(grey)
+        V_pred = self._coarse_prediction(self.predict(), small, frame)
+        self._memory.push(small)
         h, w = frame.depth_m.shape
         uv = project(V_pred, K)
         pred_mask = faces_mask(uv, faces, (h, w))
-        grey = grey_of(frame)
         prepared = None
         if cfg.use_correspondence and self._corr is not None:
             # Optical flow or feature detection needs no object mask: it runs on a second
@@ -388,6 +397,60 @@ class MeshTracker:
         finally:
             if prepared is not None:
                 prepared.exception()  # waits: the worker never uses the feature state after this frame
+
+    def _coarse_prediction(self, V_pred: np.ndarray, small: np.ndarray, frame: RGBDFrame) -> np.ndarray:
+        """The best of three predictions for this frame (N, 3): ``V_pred`` (constant velocity),
+        the last estimate unmoved, and the last estimate moved by the image translation that
+        phase correlation measures around it (``perception.coarse``), each scored by how well
+        the vertices seen in the last frame agree with the new one. A hypothesis other than
+        ``V_pred`` must score clearly better to be taken."""
+        K = frame.camera.K
+        uv_prev = project(self._V, K)
+        seen = np.all(np.isfinite(uv_prev), axis=1) & (self._visible if self._visible is not None else True)
+        if seen.sum() < 3:
+            return V_pred
+        hypotheses = {"velocity": V_pred, "still": self._V}
+        h, w = frame.depth_m.shape
+        u, v = uv_prev[seen].T
+        box = (max(0.0, v.min()), min(h, v.max() + 1), max(0.0, u.min()), min(w, u.max() + 1))
+        found = self._memory.translation(small, box)
+        if found is not None and found[1] > MIN_RESPONSE:
+            hypotheses["translation"] = self._translated(uv_prev, seen, found[0], frame)
+        scores = {name: self._support(V, small, frame, uv_prev, seen) for name, V in hypotheses.items()}
+        best = max(scores, key=scores.get)
+        self.last_motion_scores = scores
+        if best == "velocity" or scores[best] < scores["velocity"] + 0.03:
+            return V_pred
+        log.debug("frame %d: predicted from %s (scores %s)", frame.seq, best, scores)
+        self.coarse_corrections += 1
+        return hypotheses[best]
+
+    def _translated(self, uv_prev: np.ndarray, seen: np.ndarray, shift_px: np.ndarray, frame: RGBDFrame) -> np.ndarray:
+        """The last estimate moved so that its image moves by ``shift_px`` (2,), each vertex at
+        the depth change measured for the seen ones (their median where a pixel's depth jumps
+        away from it, or is missing)."""
+        K = frame.camera.K
+        h, w = frame.depth_m.shape
+        uv_new = uv_prev + shift_px
+        cols, rows, inside = pixel_index(uv_new, w, h)
+        d = np.where(inside, frame.depth_m[rows, cols], np.nan).astype(np.float64)
+        dz = d - self._V[:, 2]
+        measured = np.isfinite(dz) & (d > 0) & seen
+        typical = float(np.median(dz[measured])) if measured.any() else 0.0
+        dz = np.where(measured & (np.abs(dz - typical) < self.config.depth_outlier_m), dz, typical)
+        return rays(np.where(np.isfinite(uv_new), uv_new, 0.0), K) * (self._V[:, 2] + dz)[:, None]
+
+    def _support(self, V: np.ndarray, small: np.ndarray, frame: RGBDFrame, uv_prev: np.ndarray, seen: np.ndarray) -> float:
+        """How well ``V`` (N, 3) explains the frame, in [0, 1]: the fraction of the vertices
+        seen in the last frame that land on measured depth within ``depth_outlier_m`` of
+        their own, weighted by how alike the grey values there and at their previous pixels are."""
+        uv = project(V, frame.camera.K)
+        h, w = frame.depth_m.shape
+        cols, rows, inside = pixel_index(uv[seen], w, h)
+        d = frame.depth_m[rows, cols]
+        on_surface = inside & np.isfinite(d) & (np.abs(d - V[seen, 2]) < self.config.depth_outlier_m)
+        look = self._memory.agreement(small, uv_prev[seen], uv[seen])
+        return float(on_surface.mean() * (0.5 + 0.5 * max(look, 0.0)))
 
     def _solve_frame(self, frame, V_pred, pred_mask, grey, prepared, t0) -> MeshEstimate:
         cfg = self.config
@@ -464,6 +527,7 @@ class MeshTracker:
     def _estimate(self, frame, V, energies, iterations, confidence, t0, lost=None, visible=None) -> MeshEstimate:
         if lost is None:
             lost = confidence < self.config.lost_confidence
+        self._visible = visible
         return MeshEstimate(
             vertices=V, faces=self._faces_out, boundary=self.mesh.boundary, canonical=self.mesh.canonical,
             timestamp_s=frame.timestamp_s, seq=frame.seq, energies=energies, iterations=iterations,

@@ -99,3 +99,19 @@ def test_a_known_occluder_mask_removes_the_features_and_outline_on_it(tex):
     assert len(xy) > 50 and not region[xy[:, 1], xy[:, 0]].any()
     under = region[tuple(np.rint(project(e.vertices, CAM.K)[:, ::-1]).astype(int).T)]
     assert under.sum() > 10 and not e.visible[under].any()
+
+
+@pytest.mark.parametrize("features", ["sift", "klt"])
+def test_a_120_px_jump_between_two_frames_is_followed(tex, features):
+    """The sheet moves a few millimetres a frame, then 120 px (27 cm) between two frames
+    (a dropped frame during a fast lift), then on as before."""
+    jump = np.array([120 * 1.3 / CAM.K[0, 0], -40 * 1.3 / CAM.K[1, 1], 0.05])
+    shifts = [np.array([0.003 * k, 0.0, 0.0]) + (jump if k >= 4 else 0.0) for k in range(8)]
+    tracker = MeshTracker(TrackerConfig(features=features))
+    e0 = tracker.initialise(sheet(shifts[0], tex, 0))
+    for k in range(1, 8):
+        e = tracker.track(sheet(shifts[k], tex, k))
+        err = np.linalg.norm(e.vertices - (e0.vertices + shifts[k]), axis=1)
+        assert err.mean() < 0.006, f"frame {k}: mean error {err.mean() * 1000:.1f} mm"
+        assert not e.lost and e.confidence > 0.8
+    assert tracker.coarse_corrections >= 1
