@@ -45,6 +45,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import re
 import shutil
 import subprocess
@@ -67,6 +68,14 @@ MASKS_DIR = "reference_masks"
 MASKS_INDEX = "reference_masks.json"
 FLOW_FILE = "groundtruth_flow.npz"
 RECORDING_FILE = "recording.json"
+DATA_ENV = "CLOTHKIT_DATA"
+DEFAULT_DATA_ROOT = Path("/work/data")
+
+
+def data_root() -> Path:
+    """Where converted recordings live (never inside the repository): the folder named by the
+    environment variable CLOTHKIT_DATA, else /work/data."""
+    return Path(os.environ.get(DATA_ENV) or DEFAULT_DATA_ROOT)
 
 
 class RecordingError(ValueError):
