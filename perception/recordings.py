@@ -326,14 +326,18 @@ def read_deformable_tracking(tree: SourceTree) -> Recording:
 # -- deepdeform -----------------------------------------------------------------------------
 
 
+def _join(folder: str, name: str) -> str:
+    return name if folder in ("", ".") else f"{folder}/{name}"
+
+
 def _deepdeform_folder(tree: SourceTree, sequence: str | None) -> str:
     if sequence is not None:
         folder = sequence.strip("/")
-        if f"{folder}/intrinsics.txt" not in tree.files:
+        if _join(folder, "intrinsics.txt") not in tree.files:
             raise RecordingError(f"{tree.where(folder)}: not a DeepDeform sequence (no intrinsics.txt)")
         return folder
     folders = sorted(str(PurePosixPath(f).parent) for f in tree.files if PurePosixPath(f).name == "intrinsics.txt")
-    folders = [f for f in folders if tree.under(f"{f}/color") and tree.under(f"{f}/depth")]
+    folders = [f for f in folders if tree.under(_join(f, "color")) and tree.under(_join(f, "depth"))]
     if not folders:
         raise RecordingError(f"{tree.root}: no DeepDeform sequence (a folder with intrinsics.txt, color/, depth/)")
     if len(folders) > 1:
@@ -363,10 +367,10 @@ def read_deepdeform(tree: SourceTree, sequence: str | None = None) -> Recording:
         found by itself when the tree holds exactly one
     """
     folder = _deepdeform_folder(tree, sequence)
-    colour = _numbered(tree.under(f"{folder}/color"), r"(\d+)\.(?:jpg|png)", tree.where(f"{folder}/color/"))
-    depth = _numbered(tree.under(f"{folder}/depth"), r"(\d+)\.png", tree.where(f"{folder}/depth/"))
+    colour = _numbered(tree.under(_join(folder, "color")), r"(\d+)\.(?:jpg|png)", tree.where(_join(folder, "color/")))
+    depth = _numbered(tree.under(_join(folder, "depth")), r"(\d+)\.png", tree.where(_join(folder, "depth/")))
     numbers = _pair_numbers(colour, depth, tree)
-    K = _deepdeform_intrinsics(tree.read(f"{folder}/intrinsics.txt"), tree.where(f"{folder}/intrinsics.txt"))
+    K = _deepdeform_intrinsics(tree.read(_join(folder, "intrinsics.txt")), tree.where(_join(folder, "intrinsics.txt")))
     first = _decode_image(tree.read(depth[numbers[0]]), tree.where(depth[numbers[0]]), depth=True)
     camera = CameraInfo(width=first.shape[1], height=first.shape[0], K=K)
     position = {n: i for i, n in enumerate(numbers)}
@@ -380,7 +384,7 @@ def read_deepdeform(tree: SourceTree, sequence: str | None = None) -> Recording:
 
     masks: dict[int, np.ndarray] = {}
     objects = set()
-    for f in tree.under(f"{folder}/mask"):
+    for f in tree.under(_join(folder, "mask")):
         m = re.fullmatch(r"(\d+)_(.+)\.png", PurePosixPath(f).name)
         if not m:
             continue
@@ -393,7 +397,7 @@ def read_deepdeform(tree: SourceTree, sequence: str | None = None) -> Recording:
         objects.add(m.group(2))
 
     flows = []
-    for f in tree.under(f"{folder}/scene_flow"):
+    for f in tree.under(_join(folder, "scene_flow")):
         m = re.fullmatch(r"(.+)_(\d+)_(\d+)\.sflow", PurePosixPath(f).name)
         if not m:
             continue
@@ -403,7 +407,7 @@ def read_deepdeform(tree: SourceTree, sequence: str | None = None) -> Recording:
                         tree.where(f), src, tgt)
             continue
         scene = read_binary_flow(tree.read(f), 3, camera, tree.where(f))
-        oflow_path = f"{folder}/optical_flow/{PurePosixPath(f).stem}.oflow"
+        oflow_path = _join(folder, f"optical_flow/{PurePosixPath(f).stem}.oflow")
         optical = read_binary_flow(tree.read(oflow_path), 2, camera, tree.where(oflow_path)) \
             if oflow_path in tree.files else None
         flows.append(FlowPair(position[src], position[tgt], scene, optical))
@@ -412,7 +416,7 @@ def read_deepdeform(tree: SourceTree, sequence: str | None = None) -> Recording:
     provenance = dict(
         sequence=folder, objects=sorted(objects),
         depth_units="millimetres (uint16 PNG), registered to colour",
-        intrinsics=f"{folder}/intrinsics.txt",
+        intrinsics=_join(folder, "intrinsics.txt"),
         timestamps=f"nominal: frame number / {FRAME_RATE_HZ:g} Hz (the source has none)")
     return Recording("deepdeform", camera, MILLIMETRES_PER_METRE, frames, masks, flows, provenance)
 
@@ -461,7 +465,7 @@ def carry_mask(mask: np.ndarray, optical_flow_px: np.ndarray, close_px: int = 7)
     inside = (u >= 0) & (u < w) & (v >= 0) & (v < h)
     out = np.zeros((h, w), np.uint8)
     out[v[inside], u[inside]] = 1
-    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (close_px, close_px))
+    kernel = np.ones((close_px, close_px), np.uint8)  # square: a disc leaves gaps open along straight edges
     return cv2.morphologyEx(out, cv2.MORPH_CLOSE, kernel).astype(bool)
 
 

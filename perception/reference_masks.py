@@ -237,7 +237,10 @@ def follow_object(frames: Iterable[tuple[np.ndarray, np.ndarray]], seed: np.ndar
                                          f"{seed.shape} with {int(seed.sum())} pixels")
             model = ColourModel.learn(rgb, depth_m, seed, config)
             previous = seed
-        mask = next_mask(rgb, depth_m, previous, model, config)
+        try:
+            mask = next_mask(rgb, depth_m, previous, model, config)
+        except ReferenceMaskError as exc:
+            raise ReferenceMaskError(f"frame {i}: {exc}") from None
         if not mask.any():
             raise ReferenceMaskError(f"frame {i}: the object's mask is empty (lost it)")
         log.debug("frame %d: %d pixels", i, int(mask.sum()))
