@@ -180,8 +180,8 @@ def summarise(run: dict) -> dict:
         ok = (cov >= TARGET_COVERAGE) & (onm >= TARGET_ON_MASK)
         out.update(coverage_min=float(cov.min()), coverage_mean=float(cov.mean()), on_mask_min=float(onm.min()),
                    on_mask_mean=float(onm.mean()), frames_meeting_target=int(ok.sum()))
-        # a frame where the mesh is off the object but confidence stays at 0.5 or more
-        wrong = [f for f in frames if f["coverage"] is not None and f["coverage"] < 0.5 and not f["lost"]
+        # the mesh mostly off the object (on the wrong surface), yet not lost and confidence 0.5 or more
+        wrong = [f for f in frames if f["on_mask"] is not None and f["on_mask"] < 0.5 and not f["lost"]
                  and f["confidence"] >= 0.5]
         out["confident_wrong_frames"] = len(wrong)
     if run["flow"]:
