@@ -102,6 +102,8 @@ class TrackerConfig:
     depth_outlier_m : depth residuals larger than this are ignored (occlusion, edges)
     occlusion_margin_m : a vertex is hidden when the measured surface at its pixel is this much nearer
     lambda_m : weight of the motion prior that carries hidden and unobserved vertices
+    coarse_motion : before each frame's minimisation, also consider the last mesh unmoved and
+        moved by the image translation measured around it (large motions, dropped frames)
     boundary_gate_m : boundary vertices farther than this from the outline are left alone
     velocity_prediction : fraction of the last inter-frame motion added to predict the next frame
     init_iterations : smoothing iterations when the mesh is laid on the first frame
@@ -133,6 +135,7 @@ class TrackerConfig:
     depth_outlier_m: float = 0.08
     occlusion_margin_m: float = 0.08
     lambda_m: float = 1.0
+    coarse_motion: bool = True
     boundary_gate_m: float = 0.06
     velocity_prediction: float = 0.5
     init_iterations: int = 10
@@ -380,7 +383,9 @@ class MeshTracker:
         faces = self.mesh.faces
         grey = grey_of(frame)
         small = self._memory.small(grey)
-        V_pred = self._coarse_prediction(self.predict(), small, frame)
+        V_pred = self.predict()
+        if cfg.coarse_motion:
+            V_pred = self._coarse_prediction(V_pred, small, frame)
         self._memory.push(small)
         h, w = frame.depth_m.shape
         uv = project(V_pred, K)
