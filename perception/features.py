@@ -410,7 +410,8 @@ class KLTCorrespondences:
             if face_ok is not None:
                 ok &= face_ok[self.active.face_ids]
             self.active.xy = xy.astype(np.float32)
-            self.dormant = self.dormant.join(self.active.take(~ok))
+            lost = self.active.take(~ok)
+            self.dormant = self.dormant.join(lost.take(np.isin(lost.ref, list(self._refs))))  # revivable ones
             self.active = self.active.take(ok)
         if len(self.dormant):
             self.active = self.active.join(self._revive(grey, mask, V_pred, faces, K, face_ok))

@@ -30,16 +30,19 @@ from threadpoolctl import ThreadpoolController
 
 from ipc.messages import MeshEstimate, RGBDFrame
 from perception.camera import Undistorter, pixel_index, project, rays
+from perception.confidence import Assessment, assess
 from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, MotionPriorTerm
 from perception.features import make_correspondences, resolve_kind
-from perception.initial_mesh import InitialisationError, mesh_from_mask, place_mesh
+from perception.initial_mesh import InitialisationError, mesh_from_mask, place_mesh, spacing_for
+from perception.appearance import AppearanceModel
 from perception.coarse import MIN_RESPONSE, FrameMemory
 from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
 from perception.raster import faces_mask
 from perception.segmentation import SegmentationConfig, find_object, segment_tracked
 from perception.solver import SemiImplicitSolver
-from perception.visibility import NO_DEPTH, VISIBLE, classify_vertices, visible_faces
+from perception.registration import GlobalRegistration
+from perception.visibility import NO_DEPTH, OCCLUDED, VISIBLE, classify_vertices, visible_faces
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +83,10 @@ class TrackingError(ValueError):
 class TrackerConfig:
     """Every knob of the tracker. Weights default to the paper's.
 
-    spacing_m : canonical mesh edge length, metres (0.03 gives ~370 vertices on a 60x45 cm cloth)
+    spacing_m : canonical mesh edge length, metres (0.03 gives ~370 vertices on a 60x45 cm cloth);
+        0 (default) chooses it from the object in the first frame, for about ``target_vertices``
+    target_vertices : how many vertices an automatically spaced mesh gets (a 5 cm wide tube
+        gets a usable mesh as a towel does)
     lambda_c, lambda_d, lambda_b : weights of the correspondence, depth and boundary terms
     use_correspondence, use_depth, use_boundary : switch terms off for ablations
     alpha : adaptation rate of the semi-implicit scheme (larger = smaller, safer steps)
@@ -109,9 +115,13 @@ class TrackerConfig:
     init_iterations : smoothing iterations when the mesh is laid on the first frame
     confidence_tol_m : a vertex is supported when its depth agrees within this
     lost_confidence : below this confidence the estimate is flagged lost
+    reacquire_every : once lost, the tracker looks for the object again in each of the first
+        three lost frames, then in every this many (a search of the whole frame costs time);
+        0 never looks
     """
 
-    spacing_m: float = 0.03
+    spacing_m: float = 0.0
+    target_vertices: int = 400
     lambda_c: float = 1.3
     lambda_d: float = 0.6
     lambda_b: float = 0.8
@@ -141,27 +151,31 @@ class TrackerConfig:
     init_iterations: int = 10
     confidence_tol_m: float = 0.03
     lost_confidence: float = 0.4
+    reacquire_every: int = 10
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
 
     def __post_init__(self):
-        positive = ("spacing_m", "alpha", "tolerance_m", "match_gate_px", "depth_outlier_m", "boundary_gate_m",
+        positive = ("alpha", "tolerance_m", "match_gate_px", "depth_outlier_m", "boundary_gate_m",
                     "confidence_tol_m", "occlusion_margin_m")
         for name in positive:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a positive number, got {v!r}")
-        for name in ("lambda_c", "lambda_d", "lambda_b", "lambda_m", "velocity_prediction", "min_predicted_decrease"):
+        for name in ("spacing_m", "lambda_c", "lambda_d", "lambda_b", "lambda_m", "velocity_prediction",
+                     "min_predicted_decrease"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a non-negative number, got {v!r}")
         if not 0 < self.match_keep_fraction <= 1:
             raise ValueError(f"TrackerConfig.match_keep_fraction: expected (0, 1], got {self.match_keep_fraction}")
-        counts = ("max_iterations", "cg_iterations", "max_features", "depth_window_px")
+        counts = ("max_iterations", "cg_iterations", "max_features", "depth_window_px", "target_vertices")
         for name in counts:
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"TrackerConfig.{name}: expected an integer >= 1, got {getattr(self, name)!r}")
         if not self.outlier_radii_m or any(not r > 0 for r in self.outlier_radii_m):
             raise ValueError(f"TrackerConfig.outlier_radii_m: expected positive radii, got {self.outlier_radii_m}")
+        if int(self.reacquire_every) < 0:
+            raise ValueError(f"TrackerConfig.reacquire_every: expected an integer >= 0, got {self.reacquire_every!r}")
         resolve_kind(self.features)
 
     @classmethod
@@ -209,6 +223,12 @@ class MeshTracker:
         self._memory = FrameMemory()
         self.coarse_corrections = 0  # frames predicted otherwise than by constant velocity
         self.last_motion_scores: dict = {}
+        self._appearance: AppearanceModel | None = None
+        self._registration: GlobalRegistration | None = None
+        self._good_V = None  # (N, 3) the last estimate that was not lost
+        self.lost_streak = 0  # consecutive lost frames
+        self.reacquisitions = 0  # times the object was found again after being lost
+        self.last_assessment: Assessment | None = None
         self.last_observation: Observation | None = None
         self.last_feature_xy = np.zeros((0, 2))  # (P, 2) pixels of the last frame's correspondences
 
@@ -287,7 +307,8 @@ class MeshTracker:
         obs = observe(frame, mask, cfg.depth_window_px)
         try:
             if mesh is None:
-                mesh, V0 = mesh_from_mask(obs, cfg.spacing_m)
+                spacing = cfg.spacing_m or spacing_for(obs, cfg.target_vertices)
+                mesh, V0 = mesh_from_mask(obs, spacing)
             else:
                 V0 = place_mesh(mesh, obs)
         except InitialisationError as e:
@@ -314,11 +335,15 @@ class MeshTracker:
             self._corr.initialise(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
         self.last_observation = obs
         self._memory.push(self._memory.small(obs.grey))
-        conf = self._confidence(V, frame)
         visible = classify_vertices(V, frame.depth_m, frame.camera.K, cfg.occlusion_margin_m, frame.occluder_mask) == VISIBLE
+        self._appearance = AppearanceModel(frame.rgb, V, mesh.faces, frame.camera.K, visible, mesh.spacing_m)
+        self._registration = GlobalRegistration(resolve_kind("auto"), rng=self._rng)
+        self._registration.build(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
+        self._good_V = V
+        assessment = self._assess(V, frame, visible, obs.mask)
         log.info("initialised mesh: %d vertices, %d faces, %d boundary, %d features", mesh.n_vertices,
                  len(mesh.faces), len(mesh.boundary), self._corr.n_model if self._corr else 0)
-        return self._estimate(frame, V, res.energies, res.iterations, conf, t0, visible=visible)
+        return self._estimate(frame, V, res.energies, res.iterations, assessment, t0, visible)
 
     def _make_solver(self, mesh: CanonicalMesh) -> SemiImplicitSolver:
         cfg = self.config
@@ -398,10 +423,82 @@ class MeshTracker:
             prepared = self._worker().submit(self._corr.prepare, *args) if cfg.feature_thread \
                 else _Done(self._corr.prepare(*args))
         try:
-            return self._solve_frame(frame, V_pred, pred_mask, grey, prepared, t0)
+            estimate = self._solve_frame(frame, V_pred, pred_mask, grey, prepared, t0)
         finally:
             if prepared is not None:
                 prepared.exception()  # waits: the worker never uses the feature state after this frame
+        if not estimate.lost:
+            self.lost_streak = 0
+            self._good_V = estimate.vertices
+            return estimate
+        self.lost_streak += 1
+        every = cfg.reacquire_every
+        if every and (self.lost_streak <= 3 or self.lost_streak % every == 0):
+            found = self._reacquire(frame, grey, t0)
+            if found is not None:
+                return found
+        return estimate
+
+    def _reacquire(self, frame: RGBDFrame, grey: np.ndarray, t0: float) -> MeshEstimate | None:
+        """Look for the object anywhere in ``frame`` and fit the mesh there; the estimate if it
+        is not lost (and the tracker then goes on from it), else None.
+
+        The mesh is placed by global registration of the first frame's features
+        (``perception.registration``), or, on a cloth without enough texture for that, on
+        the object that depth segmentation finds, as at initialisation. Then the frame is
+        solved from there as an initialisation is, with the registration's matches as
+        correspondences."""
+        cfg = self.config
+        K = frame.camera.K
+        faces = self.mesh.faces
+        occluder = frame.occluder_mask
+        search = None if occluder is None else ~occluder
+        found = self._registration.register(grey, frame.depth_m, self._good_V, faces, K, search) \
+            if self._registration is not None else None
+        if found is not None:
+            V0 = found.apply(self._good_V)
+        else:
+            mask = find_object(frame.depth_m, K, cfg.segmentation, self._rng)
+            if occluder is not None:
+                mask &= ~occluder
+            if not mask.any():
+                return None
+            try:
+                V0 = place_mesh(self.mesh, observe(frame, mask, cfg.depth_window_px, grey=grey))
+            except InitialisationError:
+                return None
+        h, w = frame.depth_m.shape
+        z = V0[:, 2]
+        mask = segment_tracked(frame.depth_m, faces_mask(project(V0, K), faces, (h, w)), (float(z.min()), float(z.max())),
+                               cfg.segmentation)
+        if occluder is not None:
+            mask &= ~occluder
+        if not mask.any():
+            return None
+        obs = observe(frame, mask, cfg.depth_window_px, grey=grey)
+        corr = None
+        if found is not None:
+            pts, has = obs.points_at(found.xy)
+            if has.sum() >= 3:
+                B = barycentric_matrix(found.face_ids[has], found.bary[has], faces, self.mesh.n_vertices)
+                corr = CorrespondenceTerm(B, pts[has], np.ones(int(has.sum())))
+        observed = classify_vertices(V0, frame.depth_m, K, cfg.occlusion_margin_m, occluder) != OCCLUDED
+        res = self._solver.minimise(V0, self._data_terms(obs, corr, observed, V0), 2 * cfg.init_iterations, cfg.tolerance_m)
+        V = res.vertices
+        visible = classify_vertices(V, frame.depth_m, K, cfg.occlusion_margin_m, occluder) == VISIBLE
+        assessment = self._assess(V, frame, visible, mask)
+        if assessment.lost(cfg.lost_confidence):
+            log.debug("frame %d: re-acquisition rejected (%s)", frame.seq, assessment.as_dict())
+            return None
+        self._V, self._V_prev, self._good_V = V, V.copy(), V
+        self.last_observation = obs
+        if self._corr is not None:
+            self._corr.initialise(obs.grey, self._feature_mask(mask), V, faces, K)
+        self.lost_streak = 0
+        self.reacquisitions += 1
+        log.info("frame %d: object re-acquired by %s (confidence %.2f)", frame.seq,
+                 "registration" if found is not None else "segmentation", assessment.confidence)
+        return self._estimate(frame, V, res.energies, res.iterations, assessment, t0, visible)
 
     def _coarse_prediction(self, V_pred: np.ndarray, small: np.ndarray, frame: RGBDFrame) -> np.ndarray:
         """The best of three predictions for this frame (N, 3): ``V_pred`` (constant velocity),
@@ -471,7 +568,7 @@ class MeshTracker:
             self._V_prev, self._V = self._V, self._V.copy()
             self.last_observation = None
             state = classify_vertices(self._V, frame.depth_m, K, cfg.occlusion_margin_m, occluder)
-            return self._estimate(frame, self._V, {}, 0, 0.0, t0, lost=True, visible=state == VISIBLE)
+            return self._estimate(frame, self._V, {}, 0, None, t0, state == VISIBLE)
         state = classify_vertices(V_pred, frame.depth_m, K, cfg.occlusion_margin_m, occluder)
         # Hidden and out-of-view vertices have no data; one without depth may have slid off
         # the object (the boundary term brings it back) or sit on a hole in the depth.
@@ -504,39 +601,31 @@ class MeshTracker:
         self.last_observation = obs
         if corr is not None:
             energies["inliers"] = float(corr.weights.sum())
-        state = classify_vertices(V, frame.depth_m, K, cfg.occlusion_margin_m, occluder)
-        return self._estimate(frame, V, energies, iterations, self._confidence(V, frame), t0, visible=state == VISIBLE)
+        visible = classify_vertices(V, frame.depth_m, K, cfg.occlusion_margin_m, occluder) == VISIBLE
+        assessment = self._assess(V, frame, visible, mask)
+        return self._estimate(frame, V, energies, iterations, assessment, t0, visible)
 
     # -- outputs -------------------------------------------------------------------------
 
-    def _confidence(self, V: np.ndarray, frame: RGBDFrame) -> float:
-        """Fraction of vertices with depth evidence whose depth agrees.
+    def _assess(self, V: np.ndarray, frame: RGBDFrame, visible: np.ndarray, object_mask: np.ndarray) -> Assessment:
+        """The evidence for estimate ``V`` (N, 3) in ``frame`` (``perception.confidence``)."""
+        K = frame.camera.K
+        likeness = self._appearance.likeness(frame.rgb, V, self.mesh.faces, K, visible) \
+            if self._appearance is not None else 1.0
+        assessment = assess(V, self.mesh.faces, visible, frame.depth_m, object_mask, K, self.config.confidence_tol_m,
+                            likeness)
+        self.last_assessment = assessment
+        return assessment
 
-        A vertex seen in front of the measured surface contradicts the data; one behind it
-        may be occluded and says nothing; one off the image or without depth says nothing.
-        Too little evidence (under a fifth of the vertices) lowers confidence in proportion.
-        """
-        h, w = frame.depth_m.shape
-        cols, rows, inside = pixel_index(project(V, frame.camera.K), w, h)
-        d = np.where(inside, frame.depth_m[rows, cols], np.nan)
-        z = V[:, 2]
-        known = np.isfinite(d) & (d > 0)
-        agree = known & (np.abs(d - z) < self.config.confidence_tol_m)
-        contradict = known & (d > z + self.config.confidence_tol_m)
-        evidence = agree.sum() + contradict.sum()
-        if evidence == 0:
-            return 0.0
-        conf = agree.sum() / evidence
-        return float(conf * min(1.0, evidence / (0.2 * len(V))))
-
-    def _estimate(self, frame, V, energies, iterations, confidence, t0, lost=None, visible=None) -> MeshEstimate:
-        if lost is None:
-            lost = confidence < self.config.lost_confidence
+    def _estimate(self, frame, V, energies, iterations, assessment: Assessment | None, t0, visible) -> MeshEstimate:
+        """The MeshEstimate; ``assessment`` None means the object was not seen at all (lost)."""
+        confidence = 0.0 if assessment is None else assessment.confidence
+        lost = True if assessment is None else assessment.lost(self.config.lost_confidence)
         self._visible = visible
         return MeshEstimate(
             vertices=V, faces=self._faces_out, boundary=self.mesh.boundary, canonical=self.mesh.canonical,
             timestamp_s=frame.timestamp_s, seq=frame.seq, energies=energies, iterations=iterations,
-            confidence=float(np.clip(confidence, 0.0, 1.0)), lost=lost,
+            confidence=confidence, lost=lost,
             timing_ms=(time.perf_counter() - t0) * 1000.0, frame_id=frame.camera.frame_id, visible=visible)
 
 

@@ -115,3 +115,16 @@ def test_a_120_px_jump_between_two_frames_is_followed(tex, features):
         assert err.mean() < 0.006, f"frame {k}: mean error {err.mean() * 1000:.1f} mm"
         assert not e.lost and e.confidence > 0.8
     assert tracker.coarse_corrections >= 1
+
+
+def test_default_mesh_resolution_follows_the_object_size(tex):
+    """A 60 x 45 cm sheet and a 5 cm wide strip get about the same number of vertices;
+    an explicit spacing still wins."""
+    strip_uv, strip_faces = grid_surface(0.05, 0.4, 6, 40)
+    strip = frame_of(plane_points(strip_uv, np.array([0.0, 0.0, 0.9]), (0.05, 0.4)), strip_uv, strip_faces, tex, CAM,
+                     (0.05, 0.4))
+    counts = {}
+    for name, frame in (("sheet", sheet(np.zeros(3), tex, 0)), ("strip", strip)):
+        counts[name] = len(MeshTracker(TrackerConfig(target_vertices=300)).initialise(frame).vertices)
+    assert 200 < counts["strip"] < 400 and 200 < counts["sheet"] < 400, counts
+    assert len(MeshTracker(TrackerConfig(spacing_m=0.03)).initialise(strip).vertices) < 30
