@@ -15,6 +15,9 @@ that is right scores about 1 on it:
 - ``appearance``: how alike the mesh's material points look now and when the mesh was
   made: their texture (normalised correlation), or on a plain cloth their colour (a mesh
   on the wrong surface sees another texture or colour);
+- ``unstretched``: cloth hardly stretches, so a mesh whose edges are much longer than in
+  the canonical mesh (median over the edges) has been pulled onto something else, such as
+  a surface farther away;
 - ``seen``: how much of the mesh the camera sees (a mesh almost entirely hidden is carried
   by its motion prior, not by data).
 
@@ -42,11 +45,12 @@ class Assessment:
     coverage: float
     precision: float
     appearance: float
+    unstretched: float
     seen: float
 
     @property
     def confidence(self) -> float:
-        product = self.depth * self.coverage * self.precision * self.appearance * self.seen
+        product = self.depth * self.coverage * self.precision * self.appearance * self.unstretched * self.seen
         return float(np.clip(product, 0.0, 1.0))
 
     def lost(self, threshold: float) -> bool:
@@ -62,11 +66,12 @@ def _ramp(value: float, good: float) -> float:
     return float(np.clip(value / good, 0.0, 1.0))
 
 
-def assess(vertices: np.ndarray, faces: np.ndarray, visible: np.ndarray, depth_m: np.ndarray,
-           object_mask: np.ndarray, K: np.ndarray, tol_m: float, appearance: float) -> Assessment:
+def assess(vertices: np.ndarray, faces: np.ndarray, edges: np.ndarray, rest_length_m: float, visible: np.ndarray,
+           depth_m: np.ndarray, object_mask: np.ndarray, K: np.ndarray, tol_m: float, appearance: float) -> Assessment:
     """The Assessment of an estimate.
 
     vertices : (N, 3); faces : (M, 3) int; visible : (N,) bool, the vertices seen
+    edges : (E, 2) int, the mesh's edges; rest_length_m : their length in the canonical mesh
     depth_m : (H, W) float32 measured depth (0 or NaN: none); object_mask : (H, W) bool, the
     segmented object (known occluders excluded); K : (3, 3)
     tol_m : depth agreement tolerance, metres
@@ -85,5 +90,7 @@ def assess(vertices: np.ndarray, faces: np.ndarray, visible: np.ndarray, depth_m
     precision = (seen & object_mask[rows, cols]).sum() / seen.sum() if seen.any() else 0.0
     area = object_mask.sum()
     coverage = (faces_mask(uv, faces, (h, w)) & object_mask).sum() / area if area else 0.0
+    stretch = float(np.median(np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1))) / rest_length_m
     return Assessment(depth=_ramp(depth, 0.85), coverage=_ramp(coverage, 0.8), precision=_ramp(precision, 0.85),
-                      appearance=float(appearance), seen=_ramp(seen.sum() / max(n, 1), 0.25))
+                      appearance=float(appearance), unstretched=float(np.clip((1.6 - stretch) / 0.4, 0.0, 1.0)),
+                      seen=_ramp(seen.sum() / max(n, 1), 0.25))

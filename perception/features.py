@@ -25,6 +25,7 @@ from scipy.spatial import cKDTree
 
 from perception.camera import pixel_index, project
 from perception.raster import bounding_box, locate_pixels
+from perception.visibility import FACE_OUT_OF_VIEW, FACE_VISIBLE
 
 log = logging.getLogger(__name__)
 
@@ -219,9 +220,11 @@ class DescriptorCorrespondences:
         object, not what lies beyond its edge), so it happens in ``match``."""
         return None
 
-    def match(self, grey, mask, V_pred, faces, K, prepared=None, face_ok=None):
+    def match(self, grey, mask, V_pred, faces, K, prepared=None, face_state=None):
         """Matches for a new frame: (face_ids (P,), bary (P, 3), xy (P, 2) pixels in this frame).
-        face_ok : (M,) bool, the faces predicted to be seen; features bound elsewhere are not matched."""
+        face_state : (M,) int, ``perception.visibility.face_states`` of the prediction; features
+        bound to faces predicted out of view are not matched. Those predicted hidden are: the
+        object mask holds no occluder, and a match there means the face has come out from behind it."""
         cur = self.detector.detect(grey, mask)
         self._current = cur
         faces_out, bary_out, xy_out = [], [], []
@@ -230,8 +233,8 @@ class DescriptorCorrespondences:
             if model is None or len(model) == 0:
                 continue
             pred = predict_xy(model, V_pred, faces, K)
-            if face_ok is not None:
-                pred[~face_ok[model.face_ids]] = np.nan  # hidden: whatever is seen there is not this feature
+            if face_state is not None:
+                pred[face_state[model.face_ids] == FACE_OUT_OF_VIEW] = np.nan
             mi, ci = match_gated(model.keypoints, pred, cur, self.gate_px, self.keep_fraction)
             fresh = ~used[ci]
             mi, ci = mi[fresh], ci[fresh]
@@ -374,10 +377,13 @@ class KLTCorrespondences:
         guess = np.where(np.isfinite(guess), guess, self.active.xy)
         return self._flow(self._grey, grey, self.active.xy, guess)
 
-    def _revive(self, grey, mask, V_pred, faces, K, face_ok) -> _TrackedPoints:
-        """Dormant points whose faces are predicted to be seen, looked for from their reference
-        images; returns those found (and removes them from the dormant set)."""
-        seen = face_ok[self.dormant.face_ids] if face_ok is not None else np.ones(len(self.dormant), bool)
+    def _revive(self, grey, mask, V_pred, faces, K, face_state) -> _TrackedPoints:
+        """Dormant points whose faces are predicted in view, looked for from their reference
+        images (those predicted hidden too: a part that was hidden comes out from behind the
+        occluder a little away from where the motion prior carried it); returns those found on
+        the object (and removes them from the dormant set)."""
+        seen = face_state[self.dormant.face_ids] != FACE_OUT_OF_VIEW if face_state is not None \
+            else np.ones(len(self.dormant), bool)
         candidates = np.flatnonzero(seen)[: self.revive_per_frame]
         if len(candidates) == 0:
             return _TrackedPoints.empty()
@@ -396,25 +402,25 @@ class KLTCorrespondences:
         self.dormant = self.dormant.take(rest).join(pts.take(~found))
         return pts.take(found)
 
-    def match(self, grey, mask, V_pred, faces, K, prepared, face_ok=None):
+    def match(self, grey, mask, V_pred, faces, K, prepared, face_state=None):
         """The points on the object in this frame: (face_ids (P,), bary (P, 3), xy (P, 2)).
         prepared : what ``prepare`` returned for this frame
-        face_ok : (M,) bool, the faces predicted to be seen; points bound elsewhere are hidden
-            and go dormant (optical flow cannot follow a point through an occluder: it
-            slides along the occluder's edge)."""
+        face_state : (M,) int, ``perception.visibility.face_states`` of the prediction; points
+            on faces not predicted visible go dormant (optical flow cannot follow a point
+            through an occluder: it slides along the occluder's edge)."""
         if self._grey is None:
             return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 2), np.float32)
         xy, ok = prepared
         if len(self.active):
             ok = ok & on_mask(xy, mask)
-            if face_ok is not None:
-                ok &= face_ok[self.active.face_ids]
+            if face_state is not None:
+                ok &= face_state[self.active.face_ids] == FACE_VISIBLE
             self.active.xy = xy.astype(np.float32)
             lost = self.active.take(~ok)
             self.dormant = self.dormant.join(lost.take(np.isin(lost.ref, list(self._refs))))  # revivable ones
             self.active = self.active.take(ok)
         if len(self.dormant):
-            self.active = self.active.join(self._revive(grey, mask, V_pred, faces, K, face_ok))
+            self.active = self.active.join(self._revive(grey, mask, V_pred, faces, K, face_state))
         self._grey = grey
         return self.active.face_ids, self.active.bary, self.active.xy
 

@@ -80,12 +80,16 @@ def _grow(region: np.ndarray, candidate: np.ndarray) -> np.ndarray:
 
 
 def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tuple[float, float],
-                    cfg: SegmentationConfig = SegmentationConfig()) -> np.ndarray:
+                    cfg: SegmentationConfig = SegmentationConfig(), hidden_mask: np.ndarray | None = None) -> np.ndarray:
     """Object mask in a frame, given where the object is predicted to be.
 
     depth_m : (H, W) float32 metres, 0/NaN missing
     predicted_mask : (H, W) bool, the predicted mesh drawn into the image
     z_range : (z_min, z_max) metres, depth extent of the predicted mesh
+    hidden_mask : (H, W) bool, where the prediction has parts hidden behind something nearer,
+        or None. A region in the search margin next to them joins even without overlapping
+        the prediction: a hidden part comes out from behind its occluder a little away from
+        where the motion prior carried it.
     returns (H, W) bool; empty when nothing of the object is seen
     """
     out = np.zeros(predicted_mask.shape, bool)
@@ -109,6 +113,10 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
     area = stats[:, cv2.CC_STAT_AREA]
     # A region belongs to the object when a real part of it lies where the mesh was predicted.
     keep = (overlap >= np.maximum(cfg.min_region_px // 3, 0.2 * area)) & (area >= cfg.min_region_px)
+    if hidden_mask is not None:
+        near_hidden = cv2.dilate(hidden_mask[y0:y1, x0:x1].astype(np.uint8),
+                                 cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * cfg.search_margin_px + 1,) * 2)) > 0
+        keep |= (np.bincount(labels[near_hidden], minlength=n) >= cfg.min_region_px // 3) & (area >= cfg.min_region_px)
     keep[0] = False
     out[y0:y1, x0:x1] = _grow(keep[labels], candidate)
     return out

@@ -112,7 +112,7 @@ class Counters:
 
     frames_taken: int = 0  # frames given to the core (the others were skipped as older than the newest)
     processed: int = 0  # frames initialised on or tracked
-    reinitialisations: int = 0  # automatic re-initialisations (discontinuity or lost streak)
+    reinitialisations: int = 0  # automatic re-initialisations (discontinuity, lost streak, re-acquisition)
     discontinuities: int = 0  # frame stream discontinuities seen
     rejected: dict = dataclasses.field(default_factory=dict)  # kind -> frames rejected
 
@@ -270,10 +270,13 @@ class PerceptionCore:
         if (cam.width, cam.height) != (ref.width, ref.height) or not np.allclose(cam.K, ref.K):
             return self._reject("camera_changed", f"frame {frame.seq}: camera {cam.width}x{cam.height} fx={cam.fx:.6g} "
                                 f"differs from the mesh's {ref.width}x{ref.height} fx={ref.fx:.6g}")
+        found_before = self.tracker.reacquisitions
         try:
             estimate = self.tracker.track(frame)
         except TrackingError as e:
             return self._reject("tracker", f"frame {frame.seq}: {e}")
+        # The tracker found a lost object again by itself: that, too, is a re-initialisation.
+        self.counters.reinitialisations += self.tracker.reacquisitions - found_before
         return self._accept(frame, estimate)
 
     def _accept(self, frame: RGBDFrame, estimate: MeshEstimate) -> MeshEstimate:

@@ -42,7 +42,7 @@ from perception.raster import faces_mask
 from perception.segmentation import SegmentationConfig, find_object, segment_tracked
 from perception.solver import SemiImplicitSolver
 from perception.registration import GlobalRegistration
-from perception.visibility import NO_DEPTH, OCCLUDED, VISIBLE, classify_vertices, visible_faces
+from perception.visibility import NO_DEPTH, OCCLUDED, VISIBLE, classify_vertices, face_states
 
 log = logging.getLogger(__name__)
 
@@ -501,11 +501,12 @@ class MeshTracker:
         return self._estimate(frame, V, res.energies, res.iterations, assessment, t0, visible)
 
     def _coarse_prediction(self, V_pred: np.ndarray, small: np.ndarray, frame: RGBDFrame) -> np.ndarray:
-        """The best of three predictions for this frame (N, 3): ``V_pred`` (constant velocity),
+        """The best of several predictions for this frame (N, 3): ``V_pred`` (constant velocity),
         the last estimate unmoved, and the last estimate moved by the image translation that
         phase correlation measures around it (``perception.coarse``), each scored by how well
-        the vertices seen in the last frame agree with the new one. A hypothesis other than
-        ``V_pred`` must score clearly better to be taken."""
+        the vertices seen in the last frame agree with the new one; when none agrees well, also
+        the last good estimate placed by global registration (``perception.registration``).
+        A hypothesis other than ``V_pred`` must score clearly better to be taken."""
         K = frame.camera.K
         uv_prev = project(self._V, K)
         seen = np.all(np.isfinite(uv_prev), axis=1) & (self._visible if self._visible is not None else True)
@@ -519,6 +520,14 @@ class MeshTracker:
         if found is not None and found[1] > MIN_RESPONSE:
             hypotheses["translation"] = self._translated(uv_prev, seen, found[0], frame)
         scores = {name: self._support(V, small, frame, uv_prev, seen) for name, V in hypotheses.items()}
+        if max(scores.values()) < 0.5 and self._registration is not None:
+            # None of them explains the frame: look for the object in the whole frame.
+            occluder = frame.occluder_mask
+            found = self._registration.register(grey_of(frame), frame.depth_m, self._good_V, self.mesh.faces, K,
+                                                None if occluder is None else ~occluder)
+            if found is not None:
+                hypotheses["registration"] = found.apply(self._good_V)
+                scores["registration"] = self._support(hypotheses["registration"], small, frame, uv_prev, seen)
         best = max(scores, key=scores.get)
         self.last_motion_scores = scores
         if best == "velocity" or scores[best] < scores["velocity"] + 0.03:
@@ -560,7 +569,10 @@ class MeshTracker:
         faces = self.mesh.faces
         occluder = frame.occluder_mask
         z = V_pred[:, 2]
-        mask = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation)
+        state = classify_vertices(V_pred, frame.depth_m, K, cfg.occlusion_margin_m, occluder)
+        behind = np.any(state[faces] == OCCLUDED, axis=1)
+        hidden_mask = faces_mask(project(V_pred, K), faces[behind], pred_mask.shape) if behind.any() else None
+        mask = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation, hidden_mask)
         if occluder is not None:
             mask &= ~occluder
         if not mask.any():
@@ -569,7 +581,6 @@ class MeshTracker:
             self.last_observation = None
             state = classify_vertices(self._V, frame.depth_m, K, cfg.occlusion_margin_m, occluder)
             return self._estimate(frame, self._V, {}, 0, None, t0, state == VISIBLE)
-        state = classify_vertices(V_pred, frame.depth_m, K, cfg.occlusion_margin_m, occluder)
         # Hidden and out-of-view vertices have no data; one without depth may have slid off
         # the object (the boundary term brings it back) or sit on a hole in the depth.
         observed = (state == VISIBLE) | (state == NO_DEPTH)
@@ -577,7 +588,7 @@ class MeshTracker:
         corr = None
         if prepared is not None:
             fid, bary, xy = self._corr.match(obs.grey, self._feature_mask(mask), V_pred, faces, K, prepared.result(),
-                                             face_ok=visible_faces(state, faces))
+                                             face_state=face_states(state, faces))
             pts, has = obs.points_at(xy)
             self.last_feature_xy = xy[has]
             if has.any():
@@ -612,8 +623,8 @@ class MeshTracker:
         K = frame.camera.K
         likeness = self._appearance.likeness(frame.rgb, V, self.mesh.faces, K, visible) \
             if self._appearance is not None else 1.0
-        assessment = assess(V, self.mesh.faces, visible, frame.depth_m, object_mask, K, self.config.confidence_tol_m,
-                            likeness)
+        assessment = assess(V, self.mesh.faces, self._edges, self.mesh.spacing_m, visible, frame.depth_m, object_mask,
+                            K, self.config.confidence_tol_m, likeness)
         self.last_assessment = assessment
         return assessment
 

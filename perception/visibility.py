@@ -51,6 +51,15 @@ def classify_vertices(vertices: np.ndarray, depth_m: np.ndarray, K: np.ndarray, 
     return state
 
 
-def visible_faces(state: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(M,) bool: faces whose three vertices are all visible. state : (N,) from ``classify_vertices``."""
-    return np.all(state[faces] == VISIBLE, axis=1)
+FACE_VISIBLE, FACE_HIDDEN, FACE_OUT_OF_VIEW = 0, 1, 2
+
+
+def face_states(state: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(M,) int8 for faces (M, 3) given vertex states (N,) from ``classify_vertices``:
+    FACE_VISIBLE when all three vertices are visible, FACE_OUT_OF_VIEW when one is out of
+    view, else FACE_HIDDEN (partly or wholly hidden, or without depth)."""
+    s = state[faces]
+    out = np.full(len(faces), FACE_HIDDEN, np.int8)
+    out[np.all(s == VISIBLE, axis=1)] = FACE_VISIBLE
+    out[np.any(s == OUT_OF_VIEW, axis=1)] = FACE_OUT_OF_VIEW
+    return out
