@@ -512,6 +512,10 @@ class MeshTracker:
         seen = np.all(np.isfinite(uv_prev), axis=1) & (self._visible if self._visible is not None else True)
         if seen.sum() < 3:
             return V_pred
+        scores = {"velocity": self._support(V_pred, small, frame, uv_prev, seen)}
+        self.last_motion_scores = scores
+        if scores["velocity"] >= 0.9:  # the prediction explains the frame: nothing to look for
+            return V_pred
         hypotheses = {"velocity": V_pred, "still": self._V}
         h, w = frame.depth_m.shape
         u, v = uv_prev[seen].T
@@ -519,7 +523,8 @@ class MeshTracker:
         found = self._memory.translation(small, box)
         if found is not None and found[1] > MIN_RESPONSE:
             hypotheses["translation"] = self._translated(uv_prev, seen, found[0], frame)
-        scores = {name: self._support(V, small, frame, uv_prev, seen) for name, V in hypotheses.items()}
+        for name in hypotheses.keys() - scores.keys():
+            scores[name] = self._support(hypotheses[name], small, frame, uv_prev, seen)
         if max(scores.values()) < 0.5 and self._registration is not None:
             # None of them explains the frame: look for the object in the whole frame.
             occluder = frame.occluder_mask
@@ -529,7 +534,6 @@ class MeshTracker:
                 hypotheses["registration"] = found.apply(self._good_V)
                 scores["registration"] = self._support(hypotheses["registration"], small, frame, uv_prev, seen)
         best = max(scores, key=scores.get)
-        self.last_motion_scores = scores
         if best == "velocity" or scores[best] < scores["velocity"] + 0.03:
             return V_pred
         log.debug("frame %d: predicted from %s (scores %s)", frame.seq, best, scores)
