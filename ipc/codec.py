@@ -400,8 +400,14 @@ class _Message(_Spec):
 # Depth: float32 metres, or uint16 with depth_scale units per metre.
 
 
+def _bool_to_wire(mask: np.ndarray | None) -> np.ndarray | None:
+    """A bool array travels as uint8 (0 or 1), viewed without a copy."""
+    return None if mask is None else mask.view(np.uint8)
+
+
 def _rgbd_to_wire(frame: m.RGBDFrame, out: _Out) -> dict:
     values = {n: getattr(frame, n) for n in ("rgb", "camera", "timestamp_s", "seq")}
+    values["occluder_mask"] = _bool_to_wire(frame.occluder_mask)
     scale = out.depth_scale
     if scale is None:
         values["depth_m"], values["depth_scale"] = frame.depth_m, None
@@ -469,7 +475,10 @@ def _schemas() -> dict[type, _Message]:
             "lost": _Bool(),
             "timing_ms": _Float(lo=0.0),
             "frame_id": _Str(),
+            "visible": _Optional(_Array(("uint8",), 1)),
         },
+        to_wire=lambda est, out: {**{f.name: getattr(est, f.name) for f in dataclasses.fields(est)},
+                                  "visible": _bool_to_wire(est.visible)},
     )
     plan = _Message(
         m.GraspPlan,
@@ -496,6 +505,7 @@ def _schemas() -> dict[type, _Message]:
                 "camera": camera,
                 "timestamp_s": timestamp,
                 "seq": seq,
+                "occluder_mask": _Optional(_Array(("uint8",), 2)),
             },
             to_wire=_rgbd_to_wire,
             from_wire=_rgbd_from_wire,
@@ -516,6 +526,10 @@ def _schemas() -> dict[type, _Message]:
             {"request_id": request_id, "candidates": _List(plan), "estimate_seq": seq},
         ),
         _Message(m.InitialiseRequest, {"request_id": request_id, "mask": _Optional(_Array(("uint8",), 2))}),
+        _Message(
+            m.OccluderMaskRequest,
+            {"request_id": request_id, "mask": _Optional(_Array(("uint8",), 2)), "seq": _Int(lo=-1)},
+        ),
         _Message(m.ResetRequest, {"request_id": request_id}),
         _Message(m.SetParametersRequest, {"request_id": request_id, "parameters": _Map(_Scalar())}),
         _Message(m.StatusRequest, {"request_id": request_id}),

@@ -51,6 +51,7 @@ def example_messages() -> dict[type, object]:
         confidence=0.9,
         lost=False,
         timing_ms=3.5,
+        visible=np.array([True, True, False, True]),
     )
     s = math.sqrt(0.5)
     corner = m.GraspPlan(
@@ -77,12 +78,13 @@ def example_messages() -> dict[type, object]:
     mask[1:, 1:3] = 255
     examples = [
         camera,
-        m.RGBDFrame(rgb=rgb, depth_m=depth, camera=camera, timestamp_s=12.5, seq=42),
+        m.RGBDFrame(rgb=rgb, depth_m=depth, camera=camera, timestamp_s=12.5, seq=42, occluder_mask=mask > 0),
         estimate,
         corner,
         m.GraspRequest(request_id=3, max_candidates=2, kinds=("corner", "boundary"), estimate=estimate),
         m.GraspPlanReply(request_id=3, candidates=(corner, boundary), estimate_seq=42),
         m.InitialiseRequest(request_id=7, mask=mask),
+        m.OccluderMaskRequest(request_id=11, mask=mask, seq=42),
         m.ResetRequest(request_id=8),
         m.SetParametersRequest(request_id=9, parameters={"lambda_d": 0.6, "max_iterations": 20, "use_depth": True, "features": "sift"}),
         m.StatusRequest(request_id=10),

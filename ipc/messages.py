@@ -16,7 +16,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
+
+
+def _check_mask(name: str, value, shape: tuple) -> np.ndarray:
+    """Return ``value`` as a bool array of ``shape``: bool as is, integers as non-zero."""
+    arr = np.asarray(value)
+    if arr.dtype != np.bool_:
+        if arr.dtype.kind not in "iu":
+            raise ValueError(f"{name}: expected dtype bool or an integer type, got {arr.dtype}")
+        arr = arr != 0
+    return _check_array(name, arr, shape)
 
 
 def _check_array(name: str, value, shape: tuple, dtype=None, finite: bool = False) -> np.ndarray:
@@ -103,6 +113,9 @@ class RGBDFrame:
     camera : CameraInfo of both images (depth is registered to colour)
     timestamp_s : float, seconds
     seq : int, frame counter of the source
+    occluder_mask : (H, W) bool, True where a known occluder (the robot's gripper or arm,
+        a hand) covers the image, or None when nothing is known; integers are taken as
+        non-zero. The tracker never binds the object to these pixels.
     """
 
     rgb: np.ndarray
@@ -110,6 +123,7 @@ class RGBDFrame:
     camera: CameraInfo
     timestamp_s: float = 0.0
     seq: int = 0
+    occluder_mask: np.ndarray | None = None
 
     def __post_init__(self):
         cam = self.camera
@@ -125,6 +139,9 @@ class RGBDFrame:
             raise ValueError("RGBDFrame.depth_m: infinite depth values (use 0 or NaN for missing)")
         if not math.isfinite(float(self.timestamp_s)):
             raise ValueError(f"RGBDFrame.timestamp_s: expected a finite number, got {self.timestamp_s}")
+        if self.occluder_mask is not None:
+            mask = _check_mask("RGBDFrame.occluder_mask", self.occluder_mask, (cam.height, cam.width))
+            object.__setattr__(self, "occluder_mask", mask)
         object.__setattr__(self, "rgb", rgb)
         object.__setattr__(self, "depth_m", depth)
         object.__setattr__(self, "timestamp_s", float(self.timestamp_s))
@@ -148,9 +165,12 @@ class MeshEstimate:
     energies : per-term energies at the solution, keys among
         ``smoothness, correspondence, depth, boundary, total``
     iterations : solver iterations used for this frame
-    confidence : in [0, 1], fraction of visible vertices that the depth data supports
+    confidence : in [0, 1], how well the data supports the estimate (depth agreement of
+        the visible vertices, coverage of the segmented object, fit of the correspondences)
     lost : True when the data no longer explains the mesh
     timing_ms : tracking time of this frame, milliseconds
+    visible : (N,) bool, True for the vertices the camera saw in this frame (not hidden
+        behind something nearer, not out of view, with depth), or None when not known
     """
 
     vertices: np.ndarray
@@ -165,6 +185,7 @@ class MeshEstimate:
     lost: bool = False
     timing_ms: float = 0.0
     frame_id: str = "camera_color_optical_frame"
+    visible: np.ndarray | None = None
 
     def __post_init__(self):
         v = _check_array("MeshEstimate.vertices", self.vertices, (None, 3), np.float64, finite=True)
@@ -180,6 +201,8 @@ class MeshEstimate:
         object.__setattr__(self, "vertices", v)
         object.__setattr__(self, "faces", f)
         object.__setattr__(self, "boundary", b)
+        if self.visible is not None:
+            object.__setattr__(self, "visible", _check_mask("MeshEstimate.visible", self.visible, (n,)))
         object.__setattr__(self, "canonical", c)
         object.__setattr__(self, "energies", {str(k): float(x) for k, x in dict(self.energies).items()})
         object.__setattr__(self, "lost", bool(self.lost))
@@ -398,6 +421,34 @@ class SetParametersRequest:
     def __post_init__(self):
         object.__setattr__(self, "request_id", _check_request_id("SetParametersRequest", self.request_id))
         object.__setattr__(self, "parameters", _check_parameters("SetParametersRequest.parameters", self.parameters, allow_empty=False))
+
+
+@dataclass(frozen=True)
+class OccluderMaskRequest:
+    """Tell the perception service where a known occluder (the robot's own gripper or arm)
+    covers the image, so that the tracker never binds the object to those pixels.
+
+    request_id : int >= 0, echoed in the reply
+    mask : (H, W) uint8, non-zero where the occluder is (H, W of the frames), or None to
+        clear. A bool mask is converted.
+    seq : the ``seq`` of the one frame the mask belongs to, or -1 for a standing mask that
+        applies to every frame from now on until it is replaced or cleared
+    """
+
+    request_id: int = 0
+    mask: np.ndarray | None = None
+    seq: int = -1
+
+    def __post_init__(self):
+        object.__setattr__(self, "request_id", _check_request_id("OccluderMaskRequest", self.request_id))
+        if isinstance(self.seq, bool) or not isinstance(self.seq, (int, np.integer)) or self.seq < -1:
+            raise ValueError(f"OccluderMaskRequest.seq: expected a frame seq >= 0 or -1, got {self.seq!r}")
+        object.__setattr__(self, "seq", int(self.seq))
+        if self.mask is not None:
+            mask = np.asarray(self.mask)
+            if mask.dtype == np.bool_:
+                mask = mask.astype(np.uint8)
+            object.__setattr__(self, "mask", _check_array("OccluderMaskRequest.mask", mask, (None, None), np.uint8))
 
 
 @dataclass(frozen=True)

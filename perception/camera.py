@@ -82,4 +82,7 @@ class Undistorter:
         mx, my = self._maps
         rgb = cv2.remap(frame.rgb, mx, my, cv2.INTER_LINEAR)
         depth = cv2.remap(np.nan_to_num(frame.depth_m, nan=0.0), mx, my, cv2.INTER_NEAREST)
-        return RGBDFrame(rgb, depth, self.pinhole, frame.timestamp_s, frame.seq)
+        occluder = None
+        if frame.occluder_mask is not None:
+            occluder = cv2.remap(frame.occluder_mask.view(np.uint8), mx, my, cv2.INTER_NEAREST) > 0
+        return RGBDFrame(rgb, depth, self.pinhole, frame.timestamp_s, frame.seq, occluder_mask=occluder)

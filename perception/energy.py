@@ -16,6 +16,10 @@ Where the paper is silent or orthographic, choices made here:
   the vertex projects outside the object), so a vertex that slid past the outline is
   pulled back rather than pushed further out to the canonical distance.
 - Correspondences (eq. 13): each match has a weight, 0 for matches rejected as outliers.
+- Hidden vertices: the paper has no term for vertices the camera does not see. Here the
+  data terms pull only vertices classified visible (``perception.visibility``), and
+  ``MotionPriorTerm`` keeps the predicted shape of the mesh around the others, so that an
+  occluded part moves with its visible neighbours instead of being squeezed or dragged.
 """
 
 from __future__ import annotations
@@ -80,11 +84,13 @@ class DepthTerm:
     range_m : (H, W) float32 metres, measured range (distance from the camera centre) of
         the object's surface at each pixel, 0 where unmeasured or not the object
     K : (3, 3) intrinsics; outlier_m : residuals larger than this contribute nothing
+    vertex_mask : (N,) bool, the vertices the term may pull (the visible ones), or None for all
     """
 
     range_m: np.ndarray
     K: np.ndarray
     outlier_m: float
+    vertex_mask: np.ndarray | None = None
     name: str = "depth"
     _last: tuple | None = field(default=None, init=False, repr=False)
 
@@ -105,6 +111,8 @@ class DepthTerm:
         norm = np.linalg.norm(V, axis=1)
         r = norm - rho
         active = inside & (rho > 0) & (np.abs(r) < self.outlier_m)
+        if self.vertex_mask is not None:
+            active &= self.vertex_mask
         return np.where(active, r, 0.0), active, norm
 
     def evaluate(self, V: np.ndarray):
@@ -182,3 +190,40 @@ class BoundaryTerm:
         dist = np.maximum(np.abs(s), 1e-12)[:, None]
         u[self.vertex_ids[active]] = (offset / dist)[active]
         return lambda P: u * np.einsum("ij,ij->i", u, P)[:, None]
+
+
+@dataclass
+class MotionPriorTerm:
+    """Psi_M = 1/2 sum_{(i,j)} ||(v_i - v_j) - (p_i - p_j)||^2 + 1/2 anchor sum_i ||v_i - p_i||^2.
+
+    The first sum runs over the mesh edges that touch an unobserved vertex, the second over
+    the unobserved vertices: the unobserved part keeps the shape it has in the prior P (the
+    mesh predicted from the previous frames) and moves with its observed neighbours, which
+    the data place. Quadratic in V, so its Gauss-Newton model is exact.
+
+    L : (N, N) sparse, the term's Hessian (edge Laplacian plus the anchor on the diagonal)
+    prior : (N, 3) float64 metres, P
+    """
+
+    L: sp.csr_matrix
+    prior: np.ndarray
+    name: str = "motion_prior"
+
+    @classmethod
+    def around(cls, edges: np.ndarray, unobserved: np.ndarray, prior: np.ndarray, anchor: float = 0.05):
+        """The term for ``unobserved`` (N,) bool vertices, over mesh ``edges`` (E, 2) int."""
+        n = len(prior)
+        e = edges[unobserved[edges[:, 0]] | unobserved[edges[:, 1]]]
+        rows = np.tile(np.arange(len(e)), 2)
+        values = np.concatenate([np.ones(len(e)), -np.ones(len(e))])
+        A = sp.csr_matrix((values, (rows, np.concatenate([e[:, 0], e[:, 1]]))), shape=(len(e), n))  # v_i - v_j
+        L = (A.T @ A + sp.diags(anchor * unobserved.astype(np.float64))).tocsr()
+        return cls(L, np.asarray(prior, np.float64))
+
+    def evaluate(self, V: np.ndarray):
+        D = V - self.prior
+        LD = self.L @ D
+        return 0.5 * float(np.sum(D * LD)), LD
+
+    def gauss_newton(self, V: np.ndarray):
+        return lambda P: self.L @ P

@@ -25,6 +25,7 @@ from scipy.spatial import cKDTree
 
 from perception.camera import pixel_index, project
 from perception.raster import bounding_box, locate_pixels
+from perception.visibility import FACE_OUT_OF_VIEW, FACE_VISIBLE
 
 log = logging.getLogger(__name__)
 
@@ -219,8 +220,11 @@ class DescriptorCorrespondences:
         object, not what lies beyond its edge), so it happens in ``match``."""
         return None
 
-    def match(self, grey, mask, V_pred, faces, K, prepared=None):
-        """Matches for a new frame: (face_ids (P,), bary (P, 3), xy (P, 2) pixels in this frame)."""
+    def match(self, grey, mask, V_pred, faces, K, prepared=None, face_state=None):
+        """Matches for a new frame: (face_ids (P,), bary (P, 3), xy (P, 2) pixels in this frame).
+        face_state : (M,) int, ``perception.visibility.face_states`` of the prediction; features
+        bound to faces predicted out of view are not matched. Those predicted hidden are: the
+        object mask holds no occluder, and a match there means the face has come out from behind it."""
         cur = self.detector.detect(grey, mask)
         self._current = cur
         faces_out, bary_out, xy_out = [], [], []
@@ -229,6 +233,8 @@ class DescriptorCorrespondences:
             if model is None or len(model) == 0:
                 continue
             pred = predict_xy(model, V_pred, faces, K)
+            if face_state is not None:
+                pred[face_state[model.face_ids] == FACE_OUT_OF_VIEW] = np.nan
             mi, ci = match_gated(model.keypoints, pred, cur, self.gate_px, self.keep_fraction)
             fresh = ~used[ci]
             mi, ci = mi[fresh], ci[fresh]
@@ -246,6 +252,37 @@ class DescriptorCorrespondences:
             self.previous = bind(self._current, V, faces, K, grey.shape)
 
 
+@dataclass
+class _TrackedPoints:
+    """Points bound to the mesh that optical flow follows.
+
+    face_ids (P,) int64, bary (P, 3) float64: the binding; xy (P, 2) float32: where each
+    point is now (for dormant points: where it was last seen); ref (P,) int64: the
+    reference image it was found in, ref_xy (P, 2) float32: its position there.
+    """
+
+    face_ids: np.ndarray
+    bary: np.ndarray
+    xy: np.ndarray
+    ref: np.ndarray
+    ref_xy: np.ndarray
+
+    @classmethod
+    def empty(cls) -> "_TrackedPoints":
+        return cls(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 2), np.float32), np.zeros(0, np.int64),
+                   np.zeros((0, 2), np.float32))
+
+    def __len__(self):
+        return len(self.face_ids)
+
+    def take(self, keep) -> "_TrackedPoints":
+        return _TrackedPoints(self.face_ids[keep], self.bary[keep], self.xy[keep], self.ref[keep], self.ref_xy[keep])
+
+    def join(self, other: "_TrackedPoints") -> "_TrackedPoints":
+        return _TrackedPoints(*(np.concatenate([getattr(self, f), getattr(other, f)])
+                                for f in ("face_ids", "bary", "xy", "ref", "ref_xy")))
+
+
 class KLTCorrespondences:
     """Pyramidal Lucas-Kanade tracking of points bound to the mesh.
 
@@ -253,13 +290,30 @@ class KLTCorrespondences:
     frame starting from where the previous estimate predicts them, and kept only when
     tracking back lands within ``fb_max_px`` of the start. When fewer than half remain,
     new points are found and bound through the current estimate.
+
+    A point that is lost (hidden behind an occluder, off the object, or failing the
+    forward-backward check) goes dormant instead of being forgotten: once the estimate
+    predicts its face to be seen again, it is looked for from the reference image it was
+    found in, at most ``revive_per_frame`` points a frame. That is how a region that was
+    hidden for a while is found again where it really is, not where the motion prior put
+    it. The most recent ``max_references`` reference images are kept. The search runs in
+    every frame for a second after a point was hidden, otherwise every ``revive_every`` frames:
+    it costs about as much as the frame's own optical flow.
     """
 
-    def __init__(self, max_features: int, fb_max_px: float = 1.0):
+    def __init__(self, max_features: int, fb_max_px: float = 1.0, max_references: int = 4,
+                 revive_per_frame: int = 100, revive_every: int = 3):
         self.max_features = int(max_features)
         self.fb_max_px = fb_max_px
-        self.bound: BoundFeatures | None = None
-        self.xy: np.ndarray | None = None
+        self.max_references = int(max_references)
+        self.revive_per_frame = int(revive_per_frame)
+        self.revive_every = int(revive_every)
+        self._frames = 0
+        self._since_hidden = np.inf  # frames since a point last went dormant behind an occluder
+        self.active = _TrackedPoints.empty()
+        self.dormant = _TrackedPoints.empty()
+        self._refs: dict[int, np.ndarray] = {}
+        self._next_ref = 0
         self._grey = None
         self._target = 0
         self._lk = dict(winSize=(15, 15), maxLevel=2,
@@ -267,72 +321,124 @@ class KLTCorrespondences:
 
     @property
     def n_model(self) -> int:
-        return len(self.bound) if self.bound is not None else 0
+        return len(self.active)
 
-    def _seed(self, grey, mask, V, faces, K, count: int, keep_away: np.ndarray | None = None):
-        """Find and bind up to ``count`` new corners in ``mask``, 5 px or more from ``keep_away`` (P, 2)."""
+    def _seed(self, grey, mask, V, faces, K, count: int, keep_away: np.ndarray | None = None) -> _TrackedPoints:
+        """Find and bind up to ``count`` new corners in ``mask``, 5 px or more from ``keep_away``
+        (P, 2); ``grey`` becomes their reference image."""
         allowed = mask.astype(np.uint8) * 255
         if keep_away is not None:
             for u, v in np.rint(keep_away).astype(int):
                 cv2.circle(allowed, (int(u), int(v)), 5, 0, -1)
         pts = cv2.goodFeaturesToTrack(grey, max(1, count), 0.01, 5, mask=allowed)
         xy = np.zeros((0, 2), np.float32) if pts is None else pts.reshape(-1, 2).astype(np.float32)
-        kp = Keypoints(xy, np.zeros((len(xy), 0), np.float32), False)
-        return bind(kp, V, faces, K, grey.shape)
+        face_ids, bary = bind_points(xy, V, faces, K, grey.shape)
+        ok = face_ids >= 0
+        ref = self._next_ref
+        self._next_ref += 1
+        self._refs[ref] = grey
+        for old in sorted(self._refs)[: -self.max_references]:  # forget the oldest references and their points
+            del self._refs[old]
+            self.dormant = self.dormant.take(self.dormant.ref != old)
+        return _TrackedPoints(face_ids[ok], bary[ok], xy[ok], np.full(int(ok.sum()), ref, np.int64), xy[ok].copy())
 
     def initialise(self, grey, mask, V, faces, K):
-        self.bound = self._seed(grey, mask, V, faces, K, self.max_features)
-        self.xy = self.bound.keypoints.xy.copy()
-        self._target = len(self.bound)
+        self._refs.clear()
+        self.dormant = _TrackedPoints.empty()
+        self.active = self._seed(grey, mask, V, faces, K, self.max_features)
+        self._target = len(self.active)
         self._grey = grey
 
-    def prepare(self, grey, V_pred, faces, K, predicted_mask=None):
-        """Optical flow of the tracked points into ``grey``, checked forwards and backwards:
-        (xy (P, 2) float32, ok (P,) bool). Needs no object mask and changes no state, so it
-        can run on another thread while the frame is segmented."""
-        if self.bound is None or len(self.bound) == 0 or self._grey is None:
-            return np.zeros((0, 2), np.float32), np.zeros(0, bool)
-        guess = predict_xy(self.bound, V_pred, faces, K).astype(np.float32)
-        guess = np.where(np.isfinite(guess), guess, self.xy)
-        # Both pyramids are built afresh by every call (OpenCV's Python binding takes no
-        # pyramids), so flow runs on the crop that holds the points, their predictions and
-        # the search window of the coarsest level.
-        h, w = grey.shape
-        ends = np.concatenate([self.xy, guess])
+    def _predicted(self, points: _TrackedPoints, V, faces, K) -> np.ndarray:
+        pts = np.einsum("pk,pkj->pj", points.bary, V[faces[points.face_ids]])
+        return project(pts, K).astype(np.float32)
+
+    def _flow(self, before, now, p0, guess):
+        """LK from ``before`` at p0 (P, 2) to ``now`` starting at ``guess`` (P, 2), checked
+        backwards: (xy (P, 2) float32, ok (P,) bool). Runs on the crop that holds the points,
+        their guesses and the coarsest level's search window (OpenCV's Python binding builds
+        both pyramids afresh on every call)."""
+        h, w = now.shape
+        ends = np.concatenate([p0, guess])
         pad = self._lk["winSize"][0] * 2 ** self._lk["maxLevel"]
         x0, y0 = (max(0, int(v) - pad) for v in np.floor(ends.min(axis=0)))
         x1, y1 = (int(v) + pad for v in np.ceil(ends.max(axis=0)))
         x1, y1 = min(w, max(x1, x0 + 1)), min(h, max(y1, y0 + 1))
-        before, now, shift = self._grey[y0:y1, x0:x1], grey[y0:y1, x0:x1], np.float32([x0, y0])
-        p0 = (self.xy - shift).reshape(-1, 1, 2)
-        p1, st, _ = cv2.calcOpticalFlowPyrLK(before, now, p0, (guess - shift).reshape(-1, 1, 2),
+        a, b, shift = before[y0:y1, x0:x1], now[y0:y1, x0:x1], np.float32([x0, y0])
+        q0 = (p0 - shift).reshape(-1, 1, 2)
+        p1, st, _ = cv2.calcOpticalFlowPyrLK(a, b, q0, (guess - shift).reshape(-1, 1, 2),
                                              flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk)
-        pb, stb, _ = cv2.calcOpticalFlowPyrLK(now, before, p1, p0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk)
-        fb = np.linalg.norm((pb - p0).reshape(-1, 2), axis=1)
+        pb, stb, _ = cv2.calcOpticalFlowPyrLK(b, a, p1, q0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk)
+        fb = np.linalg.norm((pb - q0).reshape(-1, 2), axis=1)
         return p1.reshape(-1, 2) + shift, (st.ravel() == 1) & (stb.ravel() == 1) & (fb < self.fb_max_px)
 
-    def match(self, grey, mask, V_pred, faces, K, prepared):
-        """The points that stayed on the object: (face_ids (P,), bary (P, 3), xy (P, 2)).
-        prepared : what ``prepare`` returned for this frame."""
-        if self.bound is None or self._grey is None:
+    def prepare(self, grey, V_pred, faces, K, predicted_mask=None):
+        """Optical flow of the active points into ``grey``, checked forwards and backwards:
+        (xy (P, 2) float32, ok (P,) bool). Needs no object mask and changes no state, so it
+        can run on another thread while the frame is segmented."""
+        if len(self.active) == 0 or self._grey is None:
+            return np.zeros((0, 2), np.float32), np.zeros(0, bool)
+        guess = self._predicted(self.active, V_pred, faces, K)
+        guess = np.where(np.isfinite(guess), guess, self.active.xy)
+        return self._flow(self._grey, grey, self.active.xy, guess)
+
+    def _revive(self, grey, mask, V_pred, faces, K, face_state) -> _TrackedPoints:
+        """Dormant points whose faces are predicted in view, looked for from their reference
+        images (those predicted hidden too: a part that was hidden comes out from behind the
+        occluder a little away from where the motion prior carried it); returns those found on
+        the object (and removes them from the dormant set)."""
+        seen = face_state[self.dormant.face_ids] != FACE_OUT_OF_VIEW if face_state is not None \
+            else np.ones(len(self.dormant), bool)
+        candidates = np.flatnonzero(seen)[: self.revive_per_frame]
+        if len(candidates) == 0:
+            return _TrackedPoints.empty()
+        pts = self.dormant.take(candidates)
+        guess = self._predicted(pts, V_pred, faces, K)
+        found = np.zeros(len(pts), bool)
+        for ref in np.unique(pts.ref):
+            sel = np.flatnonzero((pts.ref == ref) & np.all(np.isfinite(guess), axis=1))
+            if len(sel):
+                xy, ok = self._flow(self._refs[ref], grey, pts.ref_xy[sel], guess[sel])
+                ok &= on_mask(xy, mask)
+                pts.xy[sel[ok]] = xy[ok]
+                found[sel[ok]] = True
+        # Points tried and not found go to the back of the queue, so every dormant point gets its turn.
+        rest = np.setdiff1d(np.arange(len(self.dormant)), candidates)
+        self.dormant = self.dormant.take(rest).join(pts.take(~found))
+        return pts.take(found)
+
+    def match(self, grey, mask, V_pred, faces, K, prepared, face_state=None):
+        """The points on the object in this frame: (face_ids (P,), bary (P, 3), xy (P, 2)).
+        prepared : what ``prepare`` returned for this frame
+        face_state : (M,) int, ``perception.visibility.face_states`` of the prediction; points
+            on faces not predicted visible go dormant (optical flow cannot follow a point
+            through an occluder: it slides along the occluder's edge)."""
+        if self._grey is None:
             return np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 2), np.float32)
         xy, ok = prepared
-        ok = ok & on_mask(xy, mask)
-        self.bound = BoundFeatures(self.bound.keypoints.subset(ok), self.bound.face_ids[ok], self.bound.bary[ok])
-        self.xy = xy[ok]
+        if len(self.active):
+            ok = ok & on_mask(xy, mask)
+            if face_state is not None:
+                hidden = face_state[self.active.face_ids] != FACE_VISIBLE
+                if (hidden & ok).any():
+                    self._since_hidden = 0
+                ok &= ~hidden
+            self.active.xy = xy.astype(np.float32)
+            lost = self.active.take(~ok)
+            self.dormant = self.dormant.join(lost.take(np.isin(lost.ref, list(self._refs))))  # revivable ones
+            self.active = self.active.take(ok)
+        self._frames += 1
+        self._since_hidden += 1
+        if len(self.dormant) and (self._since_hidden <= 30 or self._frames % self.revive_every == 0):
+            self.active = self.active.join(self._revive(grey, mask, V_pred, faces, K, face_state))
         self._grey = grey
-        return self.bound.face_ids, self.bound.bary, self.xy
+        return self.active.face_ids, self.active.bary, self.active.xy
 
     def update(self, grey, mask, V, faces, K):
         self._grey = grey
-        if self.bound is not None and len(self.bound) < 0.5 * self._target:
-            fresh = self._seed(grey, mask, V, faces, K, self.max_features - len(self.bound), keep_away=self.xy)
-            self.bound = BoundFeatures(
-                Keypoints(np.concatenate([self.bound.keypoints.xy, fresh.keypoints.xy]),
-                          np.zeros((len(self.bound) + len(fresh), 0), np.float32), False),
-                np.concatenate([self.bound.face_ids, fresh.face_ids]),
-                np.concatenate([self.bound.bary, fresh.bary]))
-            self.xy = np.concatenate([self.xy, fresh.keypoints.xy])
+        if len(self.active) < 0.5 * self._target:
+            fresh = self._seed(grey, mask, V, faces, K, self.max_features - len(self.active), keep_away=self.active.xy)
+            self.active = self.active.join(fresh)
 
 
 def make_correspondences(kind: str, max_features: int, gate_px: float, keep_fraction: float, match_previous: bool):

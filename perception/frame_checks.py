@@ -98,6 +98,12 @@ def mesh_vertices(area_m2: float, spacing_m: float) -> int:
     return math.ceil(area_m2 * _POINTS_PER_SPACING_SQUARED / spacing_m**2)
 
 
+def spacing_for_area(area_m2: float, vertices: int) -> float:
+    """The spacing, metres, of a hexagonal mesh with about ``vertices`` vertices over
+    ``area_m2`` (``mesh_vertices`` inverted); 0 for no area."""
+    return math.sqrt(area_m2 * _POINTS_PER_SPACING_SQUARED / vertices)
+
+
 def spacing_px(frame: RGBDFrame, mask: np.ndarray, spacing_m: float) -> float:
     """Length in pixels of a mesh edge of ``spacing_m`` at the object's median depth (0 when no
     pixel of ``mask`` ((H, W) bool) has depth). The tracker's image operations on the object

@@ -256,3 +256,4 @@ def barycentric_matrix(face_ids: np.ndarray, bary: np.ndarray, faces: np.ndarray
     cols = faces[face_ids].ravel()
     rows = np.repeat(np.arange(len(face_ids)), 3)
     return sp.csr_matrix((np.asarray(bary).ravel(), (rows, cols)), shape=(len(face_ids), n_vertices))
+

@@ -87,7 +87,8 @@ def grey_of(frame: RGBDFrame) -> np.ndarray:
 def observe(frame: RGBDFrame, mask: np.ndarray, window_px: int = 5, occlusion_margin_m: float = 0.03,
             grey: np.ndarray | None = None) -> Observation:
     """Build the Observation of ``frame`` for the object ``mask`` (H, W) bool
-    (``grey``: the frame's grey image when the caller already made it)."""
+    (``grey``: the frame's grey image when the caller already made it). The outline
+    leaves out the stretches next to the frame's known occluders (``frame.occluder_mask``)."""
     K = frame.camera.K
     grey = grey_of(frame) if grey is None else grey
     depth = smooth_depth_in_mask(frame.depth_m, mask, window_px)
@@ -96,7 +97,8 @@ def observe(frame: RGBDFrame, mask: np.ndarray, window_px: int = 5, occlusion_ma
     box = bounding_box(mask, pad=1)  # the outline lies in the mask's box (plus one pixel for neighbours)
     if box is not None:
         y0, y1, x0, x1 = box
-        oy, ox = np.nonzero(outline(mask[y0:y1, x0:x1], frame.depth_m[y0:y1, x0:x1], occlusion_margin_m))
+        occluder = None if frame.occluder_mask is None else frame.occluder_mask[y0:y1, x0:x1]
+        oy, ox = np.nonzero(outline(mask[y0:y1, x0:x1], frame.depth_m[y0:y1, x0:x1], occlusion_margin_m, occluder))
         oy, ox = oy + y0, ox + x0
     else:
         oy = ox = np.zeros(0, np.int64)

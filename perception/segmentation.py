@@ -80,12 +80,16 @@ def _grow(region: np.ndarray, candidate: np.ndarray) -> np.ndarray:
 
 
 def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tuple[float, float],
-                    cfg: SegmentationConfig = SegmentationConfig()) -> np.ndarray:
+                    cfg: SegmentationConfig = SegmentationConfig(), hidden_mask: np.ndarray | None = None) -> np.ndarray:
     """Object mask in a frame, given where the object is predicted to be.
 
     depth_m : (H, W) float32 metres, 0/NaN missing
     predicted_mask : (H, W) bool, the predicted mesh drawn into the image
     z_range : (z_min, z_max) metres, depth extent of the predicted mesh
+    hidden_mask : (H, W) bool, where the prediction has parts hidden behind something nearer,
+        or None. A region in the search margin next to them joins even without overlapping
+        the prediction: a hidden part comes out from behind its occluder a little away from
+        where the motion prior carried it.
     returns (H, W) bool; empty when nothing of the object is seen
     """
     out = np.zeros(predicted_mask.shape, bool)
@@ -109,6 +113,10 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
     area = stats[:, cv2.CC_STAT_AREA]
     # A region belongs to the object when a real part of it lies where the mesh was predicted.
     keep = (overlap >= np.maximum(cfg.min_region_px // 3, 0.2 * area)) & (area >= cfg.min_region_px)
+    if hidden_mask is not None:
+        near_hidden = cv2.dilate(hidden_mask[y0:y1, x0:x1].astype(np.uint8),
+                                 cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * cfg.search_margin_px + 1,) * 2)) > 0
+        keep |= (np.bincount(labels[near_hidden], minlength=n) >= cfg.min_region_px // 3) & (area >= cfg.min_region_px)
     keep[0] = False
     out[y0:y1, x0:x1] = _grow(keep[labels], candidate)
     return out
@@ -193,22 +201,25 @@ def find_object(depth_m: np.ndarray, K: np.ndarray, cfg: SegmentationConfig = Se
     return _grow(labels == best, candidate)
 
 
-def outline(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: float = 0.03) -> np.ndarray:
+def outline(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: float = 0.03,
+            occluder_mask: np.ndarray | None = None) -> np.ndarray:
     """(H, W) bool: the object's own outline pixels.
 
     Pixels of ``mask`` with a 4-neighbour outside it, except where the object is cut by the
-    image border or hidden behind something nearer (an occluding hand or gripper): those
-    contour pixels say nothing about where the object ends.
+    image border or hidden behind something nearer (an occluding hand or gripper, found by
+    depth or given as ``occluder_mask`` (H, W) bool): those contour pixels say nothing
+    about where the object ends.
     """
     m = mask.astype(bool)
     h, w = m.shape
     d = np.where(valid_depth(depth_m), depth_m, np.inf)
     pad_m = np.pad(m, 1, constant_values=True)  # the border is not an outline
     pad_d = np.pad(d, 1, constant_values=np.inf)
+    pad_o = np.pad(np.zeros((h, w), bool) if occluder_mask is None else occluder_mask.astype(bool), 1)
     out = np.zeros_like(m)
     for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
         nb_m = pad_m[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
         nb_d = pad_d[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
-        occluded = nb_d < d - occlusion_margin_m
+        occluded = (nb_d < d - occlusion_margin_m) | pad_o[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
         out |= m & ~nb_m & ~occluded
     return out

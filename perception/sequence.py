@@ -210,6 +210,18 @@ def _read_image(path: Path, depth: bool, camera: CameraInfo) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
+def _read_mask(path: Path, camera: CameraInfo) -> np.ndarray:
+    """(H, W) bool from an 8-bit PNG (any channel non-zero), checked against the camera's size."""
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise SequenceError(f"{path}: not a readable image")
+    if img.ndim == 3:
+        img = img.max(axis=2)
+    if img.shape != (camera.height, camera.width):
+        raise SequenceError(f"{path}: size {img.shape[1]}x{img.shape[0]} differs from the camera's {camera.width}x{camera.height}")
+    return img > 0
+
+
 def _read_groundtruth(path: Path, n_frames: int) -> dict:
     try:
         with np.load(path, allow_pickle=False) as npz:
@@ -261,15 +273,24 @@ class Sequence:
         for i in range(len(self)):
             yield self.frame(i)
 
-    def frame(self, i: int) -> RGBDFrame:
+    def frame(self, i: int, occluder_dir: Path | None = None) -> RGBDFrame:
         """Frame ``i`` (0 <= i < len) as an RGBDFrame: rgb (H, W, 3) uint8 RGB, depth_m (H, W)
-        float32 metres (0 = missing), timestamp_s of the colour image, seq = i."""
+        float32 metres (0 = missing), timestamp_s of the colour image, seq = i.
+
+        occluder_dir : a folder of known-occluder masks, one 8-bit PNG per frame named as the
+            frame's depth image, non-zero on the occluder; the frame's ``occluder_mask`` (None
+            for a frame whose PNG is absent: no occluder known)"""
         if isinstance(i, bool) or not isinstance(i, (int, np.integer)) or not 0 <= i < len(self):
             raise IndexError(f"frame index {i!r} out of range for a sequence of {len(self)} frames")
         rgb = _read_image(self.rgb_files[i], depth=False, camera=self.camera)
         raw = _read_image(self.depth_files[i], depth=True, camera=self.camera)
         depth_m = raw.astype(np.float32) / np.float32(self.depth_scale)
-        return RGBDFrame(rgb=rgb, depth_m=depth_m, camera=self.camera, timestamp_s=float(self.timestamps[i]), seq=int(i))
+        occluder = None
+        if occluder_dir is not None:
+            path = Path(occluder_dir) / self.depth_files[i].name
+            occluder = _read_mask(path, self.camera) if path.exists() else None
+        return RGBDFrame(rgb=rgb, depth_m=depth_m, camera=self.camera, timestamp_s=float(self.timestamps[i]), seq=int(i),
+                         occluder_mask=occluder)
 
 
 def _listed_paths(root: Path, list_file: Path, relative: list[str]) -> list[Path]:

@@ -3,7 +3,8 @@
 It subscribes to ``RGBDFrame`` on the frames endpoint (newest frame only), tracks, and
 publishes one ``MeshEstimate`` per frame processed on the estimates endpoint; on the
 control endpoint it answers ``InitialiseRequest``, ``ResetRequest``,
-``SetParametersRequest`` and ``StatusRequest`` with a ``StatusReply`` (or ``ErrorReply``).
+``SetParametersRequest``, ``OccluderMaskRequest`` and ``StatusRequest`` with a
+``StatusReply`` (or ``ErrorReply``).
 
 Two layers:
 
@@ -50,6 +51,7 @@ from ipc import endpoints
 from ipc.messages import (
     InitialiseRequest,
     MeshEstimate,
+    OccluderMaskRequest,
     ResetRequest,
     RGBDFrame,
     SetParametersRequest,
@@ -57,7 +59,14 @@ from ipc.messages import (
     StatusRequest,
 )
 from ipc.transport import HEARTBEAT_PERIOD_S, STALE_AFTER_S, CurveKeys, Publisher, ReplyServer, Subscriber
-from perception.frame_checks import check_frame, mesh_vertices, object_lattice_bound, seen_area_m2, spacing_px
+from perception.frame_checks import (
+    check_frame,
+    mesh_vertices,
+    object_lattice_bound,
+    seen_area_m2,
+    spacing_for_area,
+    spacing_px,
+)
 from perception.segmentation import find_object
 from perception.tracker import MeshTracker, TrackerConfig, TrackingError, config_with
 
@@ -65,6 +74,9 @@ log = logging.getLogger(__name__)
 
 #: Value types a tracker parameter must have to be read and set over the wire.
 WIRE_TYPES = (bool, int, float, str)
+
+#: Occluder masks sent for frames not yet received that the service keeps at most.
+MAX_PENDING_OCCLUDERS = 64
 
 #: Estimates over which StatusReply summarises latency and tracking time: a few seconds
 #: at camera rates, so the figures follow a change of load, and enough for a 99th percentile.
@@ -89,27 +101,33 @@ MAX_VERTEX_STEPS = 5000 * 10 * 8
 
 @dataclass(frozen=True)
 class Range:
-    """Allowed values of a numerical parameter: from ``lo`` (excluded when ``lo_open``) to ``hi``."""
+    """Allowed values of a numerical parameter: from ``lo`` (excluded when ``lo_open``) to
+    ``hi``, and 0 too when ``or_zero`` (a parameter for which 0 means "choose it")."""
 
     lo: float
     hi: float
     lo_open: bool = False
+    or_zero: bool = False
 
     def __contains__(self, value) -> bool:
+        if self.or_zero and value == 0:
+            return True
         return (self.lo < value if self.lo_open else self.lo <= value) and value <= self.hi
 
     def __str__(self) -> str:
-        return f"{'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}]"
+        return f"{'0 or ' if self.or_zero else ''}{'(' if self.lo_open else '['}{self.lo:g}, {self.hi:g}]"
 
 
 #: The range of every numerical parameter a SetParametersRequest may set: TrackerConfig's own
 #: lower bounds, and upper bounds that keep the solver's numbers finite and one frame's work
 #: bounded (a frame is tracked while control requests wait).
 PARAMETER_RANGES = {
-    "spacing_m": Range(0.005, 1.0),
+    "spacing_m": Range(0.005, 1.0, or_zero=True),
+    "target_vertices": Range(3, MAX_MESH_VERTICES),
     "lambda_c": Range(0.0, 100.0),
     "lambda_d": Range(0.0, 100.0),
     "lambda_b": Range(0.0, 100.0),
+    "lambda_m": Range(0.0, 100.0),
     "alpha": Range(1e-3, 1e3),
     "max_iterations": Range(1, 100),
     "cg_iterations": Range(1, 100),
@@ -120,11 +138,13 @@ PARAMETER_RANGES = {
     "match_keep_fraction": Range(0.0, 1.0, lo_open=True),
     "depth_window_px": Range(1, 31),
     "depth_outlier_m": Range(0.0, 10.0, lo_open=True),
+    "occlusion_margin_m": Range(0.0, 10.0, lo_open=True),
     "boundary_gate_m": Range(0.0, 10.0, lo_open=True),
     "velocity_prediction": Range(0.0, 2.0),
     "init_iterations": Range(0, 100),
     "confidence_tol_m": Range(0.0, 10.0, lo_open=True),
     "lost_confidence": Range(0.0, 1.0),
+    "reacquire_every": Range(0, 1000),
 }
 
 
@@ -139,8 +159,8 @@ def apply_parameters(config: TrackerConfig, parameters: dict) -> TrackerConfig:
     """A copy of ``config`` with ``parameters`` (name -> value) applied, all or nothing.
 
     A value must have its parameter's type (an int is accepted for a float parameter) and
-    lie in its ``PARAMETER_RANGES`` range; the solver's work per frame must stay within
-    ``MAX_VERTEX_STEPS`` for the mesh of ``config`` (see ``check_work``).
+    lie in its ``PARAMETER_RANGES`` range. The budgets, which depend on the object, are
+    ``check_work``'s.
     raises ValueError naming the unknown names, or the first parameter that cannot be set
     over the wire, or the first value of the wrong type or out of its range
     """
@@ -196,7 +216,7 @@ class Counters:
 
     frames_taken: int = 0  # frames given to the core (the others were skipped as older than the newest)
     processed: int = 0  # frames initialised on or tracked
-    reinitialisations: int = 0  # automatic re-initialisations (discontinuity or lost streak)
+    reinitialisations: int = 0  # automatic re-initialisations (discontinuity, lost streak, re-acquisition)
     discontinuities: int = 0  # frame stream discontinuities seen
     rejected: dict = dataclasses.field(default_factory=dict)  # kind -> frames rejected
 
@@ -225,6 +245,8 @@ class PerceptionCore:
         self.lost_streak = 0  # consecutive lost or rejected frames while tracking
         self.last_error = ""  # one line: why the last initialisation or frame failed
         self._pending_mask: np.ndarray | None = None
+        self._standing_occluder: np.ndarray | None = None  # (H, W) bool, for every frame
+        self._occluders_by_seq: dict[int, np.ndarray] = {}  # seq -> (H, W) bool, for one frame
         self._frame_shape: tuple | None = None  # (H, W) of the last frame received
         self._last_frame: RGBDFrame | None = None
         self._mesh_camera = None  # CameraInfo the mesh was initialised on
@@ -243,6 +265,33 @@ class PerceptionCore:
         self.state = "initialising"
         self.last_error = ""
         log.info("initialising on the next frame (%s)", "mask" if mask is not None else "depth segmentation")
+
+    def set_occluder_mask(self, mask: np.ndarray | None, seq: int = -1) -> None:
+        """Where a known occluder covers frame ``seq`` (-1: every frame from now on).
+
+        mask : (H, W) uint8 or bool, non-zero on the occluder; None clears it
+        raises ValueError if the mask's size differs from that of the frames received"""
+        if mask is not None and self._frame_shape is not None and mask.shape != self._frame_shape:
+            raise ValueError(f"OccluderMaskRequest.mask: expected shape {self._frame_shape} like the frames, got {mask.shape}")
+        occluder = None if mask is None else np.asarray(mask) != 0
+        if seq < 0:
+            self._standing_occluder = occluder
+        elif occluder is None:
+            self._occluders_by_seq.pop(seq, None)
+        else:
+            if seq not in self._occluders_by_seq and len(self._occluders_by_seq) >= MAX_PENDING_OCCLUDERS:
+                del self._occluders_by_seq[min(self._occluders_by_seq)]  # the oldest frame's mask
+            self._occluders_by_seq[seq] = occluder
+
+    def _with_occluders(self, frame: RGBDFrame) -> RGBDFrame:
+        """``frame`` with its own occluder mask, the standing one and the one sent for its seq combined."""
+        for seq in [s for s in self._occluders_by_seq if s < frame.seq]:
+            del self._occluders_by_seq[seq]  # those frames have passed
+        masks = [m for m in (frame.occluder_mask, self._standing_occluder, self._occluders_by_seq.pop(frame.seq, None))
+                 if m is not None and m.shape == frame.depth_m.shape]
+        if not masks or (len(masks) == 1 and masks[0] is frame.occluder_mask):
+            return frame
+        return dataclasses.replace(frame, occluder_mask=np.logical_or.reduce(masks))
 
     def request_reset(self) -> None:
         """Drop the mesh; stay idle until ``request_initialise``."""
@@ -273,9 +322,12 @@ class PerceptionCore:
         return tracker_parameters(self.tracker.config)
 
     def expected_vertices(self, config: TrackerConfig) -> int | None:
-        """About how many vertices a mesh built with ``config`` would have: on the current
-        object if there is a mesh, else on everything seen in the last frame received (no
-        object can be larger); None before any frame."""
+        """About how many vertices a mesh built with ``config`` would have: ``target_vertices``
+        when it chooses the spacing (``spacing_m`` 0); else on the current object if there is
+        a mesh, or on everything seen in the last frame received (no object can be larger);
+        None before any frame."""
+        if config.spacing_m == 0:
+            return config.target_vertices
         mesh = self.tracker.mesh
         if mesh is not None:
             return math.ceil(mesh.n_vertices * (mesh.spacing_m / config.spacing_m) ** 2)
@@ -312,6 +364,7 @@ class PerceptionCore:
         problem = check_frame(frame)
         if problem is not None:
             return self._reject(*problem)
+        frame = self._with_occluders(frame)
         try:
             if self.state == "initialising":
                 return self._initialise(frame)
@@ -350,17 +403,23 @@ class PerceptionCore:
         elif mask.shape != frame.depth_m.shape:
             raise TrackingError(f"mask: expected shape {frame.depth_m.shape} like the frame, got {mask.shape}")
         mask = mask.astype(bool)
-        edge_px = spacing_px(frame, mask, config.spacing_m)
+        area_m2 = seen_area_m2(frame, mask)
+        # A chosen spacing gives about target_vertices over the object's area, tilted surfaces
+        # counting more: at least the spacing for its area as seen facing the camera.
+        spacing = config.spacing_m or spacing_for_area(area_m2, config.target_vertices)
+        if spacing == 0:
+            return  # no pixel of the object has depth: the tracker says so
+        edge_px = spacing_px(frame, mask, spacing)
         if edge_px > max(frame.camera.width, frame.camera.height):
-            raise TrackingError(f"the object is smaller than one triangle: spacing_m {config.spacing_m:g} spans "
+            raise TrackingError(f"the object is smaller than one triangle: spacing_m {spacing:g} spans "
                                 f"{edge_px:.0f} px at its depth, more than the {frame.camera.width}x{frame.camera.height} image")
-        vertices = mesh_vertices(seen_area_m2(frame, mask), config.spacing_m)
+        vertices = mesh_vertices(area_m2, spacing)
         if vertices > MAX_MESH_VERTICES:
-            raise TrackingError(f"the object is too large for a mesh at spacing_m {config.spacing_m:g}: about {vertices} "
+            raise TrackingError(f"the object is too large for a mesh at spacing_m {spacing:g}: about {vertices} "
                                 f"vertices, over the budget of {MAX_MESH_VERTICES}")
-        bound = object_lattice_bound(frame, mask, config.spacing_m)
+        bound = object_lattice_bound(frame, mask, spacing)
         if bound > LATTICE_BUDGET:
-            raise TrackingError(f"the object is too large for a mesh at spacing_m {config.spacing_m:g}: up to {bound} "
+            raise TrackingError(f"the object is too large for a mesh at spacing_m {spacing:g}: up to {bound} "
                                 f"lattice points, over the budget of {LATTICE_BUDGET}")
 
     def _track(self, frame: RGBDFrame) -> MeshEstimate | None:
@@ -368,10 +427,13 @@ class PerceptionCore:
         if (cam.width, cam.height) != (ref.width, ref.height) or not np.allclose(cam.K, ref.K):
             return self._reject("camera_changed", f"frame {frame.seq}: camera {cam.width}x{cam.height} fx={cam.fx:.6g} "
                                 f"differs from the mesh's {ref.width}x{ref.height} fx={ref.fx:.6g}")
+        found_before = self.tracker.reacquisitions
         try:
             estimate = self.tracker.track(frame)
         except TrackingError as e:
             return self._reject("tracker", f"frame {frame.seq}: {e}")
+        # The tracker found a lost object again by itself: that, too, is a re-initialisation.
+        self.counters.reinitialisations += self.tracker.reacquisitions - found_before
         return self._accept(frame, estimate)
 
     def _accept(self, frame: RGBDFrame, estimate: MeshEstimate) -> MeshEstimate:
@@ -470,7 +532,8 @@ class PerceptionService:
                                         curve=server)
             self._closers.append(self._estimates.close)
             handlers = {InitialiseRequest: self._on_initialise, ResetRequest: self._on_reset,
-                        SetParametersRequest: self._on_set_parameters, StatusRequest: self._on_status}
+                        SetParametersRequest: self._on_set_parameters, OccluderMaskRequest: self._on_occluder_mask,
+                        StatusRequest: self._on_status}
             self._control = ReplyServer(config.control, handlers, curve=server)
             self._closers.append(self._control.close)
             if config.viewer is not None:
@@ -548,6 +611,10 @@ class PerceptionService:
 
     def _on_set_parameters(self, request: SetParametersRequest) -> StatusReply:
         self.core.set_parameters(request.parameters)
+        return self.status(request.request_id)
+
+    def _on_occluder_mask(self, request: OccluderMaskRequest) -> StatusReply:
+        self.core.set_occluder_mask(request.mask, request.seq)
         return self.status(request.request_id)
 
     def _on_status(self, request: StatusRequest) -> StatusReply:

@@ -4,7 +4,10 @@
 
 Writes EST.npz with ``vertices`` (T, N, 3) float32 metres in the camera frame, ``faces``
 (M, 3), ``boundary`` (B,), ``canonical`` (N, 3) float32, ``timestamps`` (T,) float64 and
-``timing_ms`` (T,) float64 (tracking time only), plus ``confidence`` (T,) and ``lost`` (T,).
+``timing_ms`` (T,) float64 (tracking time only), plus ``confidence`` (T,), ``lost`` (T,) and
+``visible`` (T, N) bool (the vertices the camera saw in each frame). ``--occluder-masks DIR``
+gives known occluders (the robot's gripper or arm, a hand): one 8-bit PNG per frame, named
+as the frame's depth image, non-zero on the occluder.
 Optionally the mesh drawn over every RGB frame (PNG) and a PLY mesh per frame.
 Bad input ends with exit status 2 and one line on stderr naming the problem.
 """
@@ -51,6 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("sequence", type=Path, help="sequence folder (rgb.txt, depth.txt, camera_intrinsic.json)")
     p.add_argument("--output", "-o", type=Path, required=True, help="EST.npz to write")
     p.add_argument("--init-mask", type=Path, help="8-bit PNG, non-zero on the object in the first frame")
+    p.add_argument("--occluder-masks", type=Path, metavar="DIR",
+                   help="folder of 8-bit PNGs named as the depth images, non-zero on known occluders")
     p.add_argument("--preset", choices=("paper", "realtime"), default="paper",
                    help="paper: SIFT/SURF features (default); realtime: KLT, fewer iterations")
     p.add_argument("--features", choices=FEATURE_KINDS, help="feature detector (overrides the preset)")
@@ -88,15 +93,17 @@ def track_sequence(args) -> dict:
     if len(seq) == 0:
         raise ValueError(f"{args.sequence}: no frame pairs rgb/depth within 0.02 s")
     config = config_from_args(args)
+    if args.occluder_masks is not None and not args.occluder_masks.is_dir():
+        raise ValueError(f"--occluder-masks {args.occluder_masks}: not a directory")
     n = len(seq) if args.max_frames is None else max(1, min(len(seq), args.max_frames))
     tracker = MeshTracker(config)
     for d in (args.overlay_dir, args.ply_dir):
         if d is not None:
             d.mkdir(parents=True, exist_ok=True)
-    out = {k: [] for k in ("vertices", "timestamps", "timing_ms", "confidence", "lost")}
+    out = {k: [] for k in ("vertices", "timestamps", "timing_ms", "confidence", "lost", "visible")}
     estimate = None
     for i in tqdm(range(n), desc="tracking", unit="frame", disable=args.quiet):
-        frame = seq.frame(i)
+        frame = seq.frame(i, occluder_dir=args.occluder_masks)
         if i == 0:
             mask = read_mask(args.init_mask, frame.depth_m.shape) if args.init_mask else None
             estimate = tracker.initialise(frame, mask=mask)
@@ -107,6 +114,7 @@ def track_sequence(args) -> dict:
         out["timing_ms"].append(estimate.timing_ms)
         out["confidence"].append(estimate.confidence)
         out["lost"].append(estimate.lost)
+        out["visible"].append(estimate.visible)
         if args.overlay_dir is not None:
             img = draw_mesh(frame.rgb, estimate, frame.camera.K)
             cv2.imwrite(str(args.overlay_dir / f"{i:06d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
@@ -116,7 +124,8 @@ def track_sequence(args) -> dict:
         vertices=np.stack(out["vertices"]), faces=estimate.faces.astype(np.int32),
         boundary=estimate.boundary.astype(np.int32), canonical=estimate.canonical.astype(np.float32),
         timestamps=np.asarray(out["timestamps"], np.float64), timing_ms=np.asarray(out["timing_ms"], np.float64),
-        confidence=np.asarray(out["confidence"], np.float64), lost=np.asarray(out["lost"], bool))
+        confidence=np.asarray(out["confidence"], np.float64), lost=np.asarray(out["lost"], bool),
+        visible=np.stack(out["visible"]).astype(bool))
     args.output.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(args.output, **result)
     return result

@@ -29,15 +29,20 @@ import numpy as np
 from threadpoolctl import ThreadpoolController
 
 from ipc.messages import MeshEstimate, RGBDFrame
-from perception.camera import Undistorter, pixel_index, project
-from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm
+from perception.camera import Undistorter, pixel_index, project, rays
+from perception.confidence import Assessment, assess
+from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, MotionPriorTerm
 from perception.features import make_correspondences, resolve_kind
-from perception.initial_mesh import InitialisationError, mesh_from_mask, place_mesh
+from perception.initial_mesh import InitialisationError, mesh_from_mask, place_mesh, spacing_for
+from perception.appearance import AppearanceModel
+from perception.coarse import MIN_RESPONSE, FrameMemory
 from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
 from perception.raster import faces_mask
 from perception.segmentation import SegmentationConfig, find_object, segment_tracked
 from perception.solver import SemiImplicitSolver
+from perception.registration import GlobalRegistration
+from perception.visibility import NO_DEPTH, OCCLUDED, VISIBLE, classify_vertices, face_states
 
 log = logging.getLogger(__name__)
 
@@ -78,7 +83,10 @@ class TrackingError(ValueError):
 class TrackerConfig:
     """Every knob of the tracker. Weights default to the paper's.
 
-    spacing_m : canonical mesh edge length, metres (0.03 gives ~370 vertices on a 60x45 cm cloth)
+    spacing_m : canonical mesh edge length, metres (0.03 gives ~370 vertices on a 60x45 cm cloth);
+        0 (default) chooses it from the object in the first frame, for about ``target_vertices``
+    target_vertices : how many vertices an automatically spaced mesh gets (a 5 cm wide tube
+        gets a usable mesh as a towel does)
     lambda_c, lambda_d, lambda_b : weights of the correspondence, depth and boundary terms
     use_correspondence, use_depth, use_boundary : switch terms off for ablations
     alpha : adaptation rate of the semi-implicit scheme (larger = smaller, safer steps)
@@ -98,14 +106,22 @@ class TrackerConfig:
     outlier_radii_m : inlier radius of each solver stage; a match farther from its mesh point is ignored
     depth_window_px : depth is averaged over this window on the object (noise)
     depth_outlier_m : depth residuals larger than this are ignored (occlusion, edges)
+    occlusion_margin_m : a vertex is hidden when the measured surface at its pixel is this much nearer
+    lambda_m : weight of the motion prior that carries hidden and unobserved vertices
+    coarse_motion : before each frame's minimisation, also consider the last mesh unmoved and
+        moved by the image translation measured around it (large motions, dropped frames)
     boundary_gate_m : boundary vertices farther than this from the outline are left alone
     velocity_prediction : fraction of the last inter-frame motion added to predict the next frame
     init_iterations : smoothing iterations when the mesh is laid on the first frame
     confidence_tol_m : a vertex is supported when its depth agrees within this
     lost_confidence : below this confidence the estimate is flagged lost
+    reacquire_every : once lost, the tracker looks for the object again in each of the first
+        three lost frames, then in every this many (a search of the whole frame costs time);
+        0 never looks
     """
 
-    spacing_m: float = 0.03
+    spacing_m: float = 0.0
+    target_vertices: int = 400
     lambda_c: float = 1.3
     lambda_d: float = 0.6
     lambda_b: float = 0.8
@@ -127,32 +143,39 @@ class TrackerConfig:
     outlier_radii_m: tuple = (0.05, 0.02)
     depth_window_px: int = 5
     depth_outlier_m: float = 0.08
+    occlusion_margin_m: float = 0.08
+    lambda_m: float = 1.0
+    coarse_motion: bool = True
     boundary_gate_m: float = 0.06
     velocity_prediction: float = 0.5
     init_iterations: int = 10
     confidence_tol_m: float = 0.03
     lost_confidence: float = 0.4
+    reacquire_every: int = 10
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
 
     def __post_init__(self):
-        positive = ("spacing_m", "alpha", "tolerance_m", "match_gate_px", "depth_outlier_m", "boundary_gate_m",
-                    "confidence_tol_m")
+        positive = ("alpha", "tolerance_m", "match_gate_px", "depth_outlier_m", "boundary_gate_m",
+                    "confidence_tol_m", "occlusion_margin_m")
         for name in positive:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a positive number, got {v!r}")
-        for name in ("lambda_c", "lambda_d", "lambda_b", "velocity_prediction", "min_predicted_decrease"):
+        for name in ("spacing_m", "lambda_c", "lambda_d", "lambda_b", "lambda_m", "velocity_prediction",
+                     "min_predicted_decrease"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a non-negative number, got {v!r}")
         if not 0 < self.match_keep_fraction <= 1:
             raise ValueError(f"TrackerConfig.match_keep_fraction: expected (0, 1], got {self.match_keep_fraction}")
-        counts = ("max_iterations", "cg_iterations", "max_features", "depth_window_px")
+        counts = ("max_iterations", "cg_iterations", "max_features", "depth_window_px", "target_vertices")
         for name in counts:
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"TrackerConfig.{name}: expected an integer >= 1, got {getattr(self, name)!r}")
         if not self.outlier_radii_m or any(not r > 0 for r in self.outlier_radii_m):
             raise ValueError(f"TrackerConfig.outlier_radii_m: expected positive radii, got {self.outlier_radii_m}")
+        if int(self.reacquire_every) < 0:
+            raise ValueError(f"TrackerConfig.reacquire_every: expected an integer >= 0, got {self.reacquire_every!r}")
         resolve_kind(self.features)
 
     @classmethod
@@ -195,7 +218,19 @@ class MeshTracker:
         self._corr = None
         self._g0 = None
         self._faces_out = None
+        self._edges = None
+        self._visible = None  # (N,) bool, the vertices seen in the last frame
+        self._memory = FrameMemory()
+        self.coarse_corrections = 0  # frames predicted otherwise than by constant velocity
+        self.last_motion_scores: dict = {}
+        self._appearance: AppearanceModel | None = None
+        self._registration: GlobalRegistration | None = None
+        self._good_V = None  # (N, 3) the last estimate that was not lost
+        self.lost_streak = 0  # consecutive lost frames
+        self.reacquisitions = 0  # times the object was found again after being lost
+        self.last_assessment: Assessment | None = None
         self.last_observation: Observation | None = None
+        self.last_feature_xy = np.zeros((0, 2))  # (P, 2) pixels of the last frame's correspondences
 
     @property
     def initialised(self) -> bool:
@@ -272,7 +307,8 @@ class MeshTracker:
         obs = observe(frame, mask, cfg.depth_window_px)
         try:
             if mesh is None:
-                mesh, V0 = mesh_from_mask(obs, cfg.spacing_m)
+                spacing = cfg.spacing_m or spacing_for(obs, cfg.target_vertices)
+                mesh, V0 = mesh_from_mask(obs, spacing)
             else:
                 V0 = place_mesh(mesh, obs)
         except InitialisationError as e:
@@ -282,6 +318,7 @@ class MeshTracker:
         self.mesh = mesh
         self._camera = frame.camera
         self._solver = self._make_solver(mesh)
+        self._edges = mesh.edges()
         self._faces_out = self._orient_faces(mesh.faces, V0)
 
         boundary = self._boundary_term(obs, np.zeros(len(mesh.boundary)))
@@ -297,10 +334,16 @@ class MeshTracker:
                                               cfg.match_keep_fraction, cfg.match_previous_frame)
             self._corr.initialise(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
         self.last_observation = obs
-        conf = self._confidence(V, frame)
+        self._memory.push(self._memory.small(obs.grey))
+        visible = classify_vertices(V, frame.depth_m, frame.camera.K, cfg.occlusion_margin_m, frame.occluder_mask) == VISIBLE
+        self._appearance = AppearanceModel(frame.rgb, V, mesh.faces, frame.camera.K, visible, mesh.spacing_m)
+        self._registration = GlobalRegistration(resolve_kind("auto"), rng=self._rng)
+        self._registration.build(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
+        self._good_V = V
+        assessment = self._assess(V, frame, visible, obs.mask)
         log.info("initialised mesh: %d vertices, %d faces, %d boundary, %d features", mesh.n_vertices,
                  len(mesh.faces), len(mesh.boundary), self._corr.n_model if self._corr else 0)
-        return self._estimate(frame, V, res.energies, res.iterations, conf, t0)
+        return self._estimate(frame, V, res.energies, res.iterations, assessment, t0, visible)
 
     def _make_solver(self, mesh: CanonicalMesh) -> SemiImplicitSolver:
         cfg = self.config
@@ -322,18 +365,26 @@ class MeshTracker:
         # Features on the object's very edge describe the background as much as the object.
         return cv2.erode(mask.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
 
-    def _boundary_term(self, obs: Observation, g0: np.ndarray) -> BoundaryTerm:
-        return BoundaryTerm(self.mesh.boundary, g0, obs.outline_cam, obs.mask, obs.K, self.config.boundary_gate_m)
+    def _boundary_term(self, obs: Observation, g0: np.ndarray, observed: np.ndarray | None = None) -> BoundaryTerm:
+        """The boundary term over the boundary vertices that are ``observed`` ((N,) bool; all if None)."""
+        ids = self.mesh.boundary
+        keep = np.ones(len(ids), bool) if observed is None else observed[ids]
+        return BoundaryTerm(ids[keep], g0[keep], obs.outline_cam, obs.mask, obs.K, self.config.boundary_gate_m)
 
-    def _data_terms(self, obs: Observation, correspondences: CorrespondenceTerm | None):
+    def _data_terms(self, obs: Observation, correspondences: CorrespondenceTerm | None,
+                    observed: np.ndarray | None = None, prior: np.ndarray | None = None):
+        """(weight, term) pairs for one frame. observed : (N,) bool, the vertices the data may
+        pull (all if None); the others are held by the motion prior around ``prior`` (N, 3)."""
         cfg = self.config
         terms = []
         if correspondences is not None and cfg.use_correspondence and len(correspondences.targets):
             terms.append((cfg.lambda_c, correspondences))
         if cfg.use_depth:
-            terms.append((cfg.lambda_d, DepthTerm(obs.range_m, obs.K, cfg.depth_outlier_m)))
+            terms.append((cfg.lambda_d, DepthTerm(obs.range_m, obs.K, cfg.depth_outlier_m, vertex_mask=observed)))
         if cfg.use_boundary and len(obs.outline_cam):
-            terms.append((cfg.lambda_b, self._boundary_term(obs, self._g0)))
+            terms.append((cfg.lambda_b, self._boundary_term(obs, self._g0, observed)))
+        if observed is not None and prior is not None and cfg.lambda_m > 0 and not observed.all():
+            terms.append((cfg.lambda_m, MotionPriorTerm.around(self._edges, ~observed, prior)))
         return terms
 
     # -- track ---------------------------------------------------------------------------
@@ -355,11 +406,15 @@ class MeshTracker:
         cfg = self.config
         K = frame.camera.K
         faces = self.mesh.faces
+        grey = grey_of(frame)
+        small = self._memory.small(grey)
         V_pred = self.predict()
+        if cfg.coarse_motion:
+            V_pred = self._coarse_prediction(V_pred, small, frame)
+        self._memory.push(small)
         h, w = frame.depth_m.shape
         uv = project(V_pred, K)
         pred_mask = faces_mask(uv, faces, (h, w))
-        grey = grey_of(frame)
         prepared = None
         if cfg.use_correspondence and self._corr is not None:
             # Optical flow or feature detection needs no object mask: it runs on a second
@@ -368,31 +423,182 @@ class MeshTracker:
             prepared = self._worker().submit(self._corr.prepare, *args) if cfg.feature_thread \
                 else _Done(self._corr.prepare(*args))
         try:
-            return self._solve_frame(frame, V_pred, pred_mask, grey, prepared, t0)
+            estimate = self._solve_frame(frame, V_pred, pred_mask, grey, prepared, t0)
         finally:
             if prepared is not None:
                 prepared.exception()  # waits: the worker never uses the feature state after this frame
+        if not estimate.lost:
+            self.lost_streak = 0
+            self._good_V = estimate.vertices
+            return estimate
+        self.lost_streak += 1
+        every = cfg.reacquire_every
+        if every and (self.lost_streak <= 3 or self.lost_streak % every == 0):
+            found = self._reacquire(frame, grey, t0)
+            if found is not None:
+                return found
+        return estimate
+
+    def _reacquire(self, frame: RGBDFrame, grey: np.ndarray, t0: float) -> MeshEstimate | None:
+        """Look for the object anywhere in ``frame`` and fit the mesh there; the estimate if it
+        is not lost (and the tracker then goes on from it), else None.
+
+        The mesh is placed by global registration of the first frame's features
+        (``perception.registration``), or, on a cloth without enough texture for that, on
+        the object that depth segmentation finds, as at initialisation. Then the frame is
+        solved from there as an initialisation is, with the registration's matches as
+        correspondences."""
+        cfg = self.config
+        K = frame.camera.K
+        faces = self.mesh.faces
+        occluder = frame.occluder_mask
+        search = None if occluder is None else ~occluder
+        found = self._registration.register(grey, frame.depth_m, self._good_V, faces, K, search) \
+            if self._registration is not None else None
+        if found is not None:
+            V0 = found.apply(self._good_V)
+        else:
+            mask = find_object(frame.depth_m, K, cfg.segmentation, self._rng)
+            if occluder is not None:
+                mask &= ~occluder
+            if not mask.any():
+                return None
+            try:
+                V0 = place_mesh(self.mesh, observe(frame, mask, cfg.depth_window_px, grey=grey))
+            except InitialisationError:
+                return None
+        h, w = frame.depth_m.shape
+        z = V0[:, 2]
+        mask = segment_tracked(frame.depth_m, faces_mask(project(V0, K), faces, (h, w)), (float(z.min()), float(z.max())),
+                               cfg.segmentation)
+        if occluder is not None:
+            mask &= ~occluder
+        if not mask.any():
+            return None
+        obs = observe(frame, mask, cfg.depth_window_px, grey=grey)
+        corr = None
+        if found is not None:
+            pts, has = obs.points_at(found.xy)
+            if has.sum() >= 3:
+                B = barycentric_matrix(found.face_ids[has], found.bary[has], faces, self.mesh.n_vertices)
+                corr = CorrespondenceTerm(B, pts[has], np.ones(int(has.sum())))
+        observed = classify_vertices(V0, frame.depth_m, K, cfg.occlusion_margin_m, occluder) != OCCLUDED
+        res = self._solver.minimise(V0, self._data_terms(obs, corr, observed, V0), 2 * cfg.init_iterations, cfg.tolerance_m)
+        V = res.vertices
+        visible = classify_vertices(V, frame.depth_m, K, cfg.occlusion_margin_m, occluder) == VISIBLE
+        assessment = self._assess(V, frame, visible, mask)
+        if assessment.lost(cfg.lost_confidence):
+            log.debug("frame %d: re-acquisition rejected (%s)", frame.seq, assessment.as_dict())
+            return None
+        self._V, self._V_prev, self._good_V = V, V.copy(), V
+        self.last_observation = obs
+        if self._corr is not None:
+            self._corr.initialise(obs.grey, self._feature_mask(mask), V, faces, K)
+        self.lost_streak = 0
+        self.reacquisitions += 1
+        log.info("frame %d: object re-acquired by %s (confidence %.2f)", frame.seq,
+                 "registration" if found is not None else "segmentation", assessment.confidence)
+        return self._estimate(frame, V, res.energies, res.iterations, assessment, t0, visible)
+
+    def _coarse_prediction(self, V_pred: np.ndarray, small: np.ndarray, frame: RGBDFrame) -> np.ndarray:
+        """The best of several predictions for this frame (N, 3): ``V_pred`` (constant velocity),
+        the last estimate unmoved, and the last estimate moved by the image translation that
+        phase correlation measures around it (``perception.coarse``), each scored by how well
+        the vertices seen in the last frame agree with the new one; when none agrees well, also
+        the last good estimate placed by global registration (``perception.registration``).
+        A hypothesis other than ``V_pred`` must score clearly better to be taken."""
+        K = frame.camera.K
+        uv_prev = project(self._V, K)
+        seen = np.all(np.isfinite(uv_prev), axis=1) & (self._visible if self._visible is not None else True)
+        if seen.sum() < 3:
+            return V_pred
+        scores = {"velocity": self._support(V_pred, small, frame, uv_prev, seen)}
+        self.last_motion_scores = scores
+        if scores["velocity"] >= 0.9:  # the prediction explains the frame: nothing to look for
+            return V_pred
+        hypotheses = {"velocity": V_pred, "still": self._V}
+        h, w = frame.depth_m.shape
+        u, v = uv_prev[seen].T
+        box = (max(0.0, v.min()), min(h, v.max() + 1), max(0.0, u.min()), min(w, u.max() + 1))
+        found = self._memory.translation(small, box)
+        if found is not None and found[1] > MIN_RESPONSE:
+            hypotheses["translation"] = self._translated(uv_prev, seen, found[0], frame)
+        for name in hypotheses.keys() - scores.keys():
+            scores[name] = self._support(hypotheses[name], small, frame, uv_prev, seen)
+        if max(scores.values()) < 0.5 and self._registration is not None:
+            # None of them explains the frame: look for the object in the whole frame.
+            occluder = frame.occluder_mask
+            found = self._registration.register(grey_of(frame), frame.depth_m, self._good_V, self.mesh.faces, K,
+                                                None if occluder is None else ~occluder)
+            if found is not None:
+                hypotheses["registration"] = found.apply(self._good_V)
+                scores["registration"] = self._support(hypotheses["registration"], small, frame, uv_prev, seen)
+        best = max(scores, key=scores.get)
+        if best == "velocity" or scores[best] < scores["velocity"] + 0.03:
+            return V_pred
+        log.debug("frame %d: predicted from %s (scores %s)", frame.seq, best, scores)
+        self.coarse_corrections += 1
+        return hypotheses[best]
+
+    def _translated(self, uv_prev: np.ndarray, seen: np.ndarray, shift_px: np.ndarray, frame: RGBDFrame) -> np.ndarray:
+        """The last estimate moved so that its image moves by ``shift_px`` (2,), each vertex at
+        the depth change measured for the seen ones (their median where a pixel's depth jumps
+        away from it, or is missing)."""
+        K = frame.camera.K
+        h, w = frame.depth_m.shape
+        uv_new = uv_prev + shift_px
+        cols, rows, inside = pixel_index(uv_new, w, h)
+        d = np.where(inside, frame.depth_m[rows, cols], np.nan).astype(np.float64)
+        dz = d - self._V[:, 2]
+        measured = np.isfinite(dz) & (d > 0) & seen
+        typical = float(np.median(dz[measured])) if measured.any() else 0.0
+        dz = np.where(measured & (np.abs(dz - typical) < self.config.depth_outlier_m), dz, typical)
+        return rays(np.where(np.isfinite(uv_new), uv_new, 0.0), K) * (self._V[:, 2] + dz)[:, None]
+
+    def _support(self, V: np.ndarray, small: np.ndarray, frame: RGBDFrame, uv_prev: np.ndarray, seen: np.ndarray) -> float:
+        """How well ``V`` (N, 3) explains the frame, in [0, 1]: the fraction of the vertices
+        seen in the last frame that land on measured depth within ``depth_outlier_m`` of
+        their own, weighted by how alike the grey values there and at their previous pixels are."""
+        uv = project(V, frame.camera.K)
+        h, w = frame.depth_m.shape
+        cols, rows, inside = pixel_index(uv[seen], w, h)
+        d = frame.depth_m[rows, cols]
+        on_surface = inside & np.isfinite(d) & (np.abs(d - V[seen, 2]) < self.config.depth_outlier_m)
+        look = self._memory.agreement(small, uv_prev[seen], uv[seen])
+        return float(on_surface.mean() * (0.5 + 0.5 * max(look, 0.0)))
 
     def _solve_frame(self, frame, V_pred, pred_mask, grey, prepared, t0) -> MeshEstimate:
         cfg = self.config
         K = frame.camera.K
         faces = self.mesh.faces
+        occluder = frame.occluder_mask
         z = V_pred[:, 2]
-        mask = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation)
+        state = classify_vertices(V_pred, frame.depth_m, K, cfg.occlusion_margin_m, occluder)
+        behind = np.any(state[faces] == OCCLUDED, axis=1)
+        hidden_mask = faces_mask(project(V_pred, K), faces[behind], pred_mask.shape) if behind.any() else None
+        mask = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation, hidden_mask)
+        if occluder is not None:
+            mask &= ~occluder
         if not mask.any():
             log.debug("frame %d: object not seen", frame.seq)
             self._V_prev, self._V = self._V, self._V.copy()
             self.last_observation = None
-            return self._estimate(frame, self._V, {}, 0, 0.0, t0, lost=True)
+            state = classify_vertices(self._V, frame.depth_m, K, cfg.occlusion_margin_m, occluder)
+            return self._estimate(frame, self._V, {}, 0, None, t0, state == VISIBLE)
+        # Hidden and out-of-view vertices have no data; one without depth may have slid off
+        # the object (the boundary term brings it back) or sit on a hole in the depth.
+        observed = (state == VISIBLE) | (state == NO_DEPTH)
         obs = observe(frame, mask, cfg.depth_window_px, grey=grey)
         corr = None
         if prepared is not None:
-            fid, bary, xy = self._corr.match(obs.grey, self._feature_mask(mask), V_pred, faces, K, prepared.result())
+            fid, bary, xy = self._corr.match(obs.grey, self._feature_mask(mask), V_pred, faces, K, prepared.result(),
+                                             face_state=face_states(state, faces))
             pts, has = obs.points_at(xy)
+            self.last_feature_xy = xy[has]
             if has.any():
                 B = barycentric_matrix(fid[has], bary[has], faces, self.mesh.n_vertices)
                 corr = CorrespondenceTerm(B, pts[has], np.ones(int(has.sum())))
-        terms = self._data_terms(obs, corr)
+        terms = self._data_terms(obs, corr, observed, V_pred)
         V = V_pred
         stages = cfg.outlier_radii_m if corr is not None else (None,)
         budget = max(1, cfg.max_iterations // len(stages))
@@ -410,38 +616,32 @@ class MeshTracker:
         self.last_observation = obs
         if corr is not None:
             energies["inliers"] = float(corr.weights.sum())
-        return self._estimate(frame, V, energies, iterations, self._confidence(V, frame), t0)
+        visible = classify_vertices(V, frame.depth_m, K, cfg.occlusion_margin_m, occluder) == VISIBLE
+        assessment = self._assess(V, frame, visible, mask)
+        return self._estimate(frame, V, energies, iterations, assessment, t0, visible)
 
     # -- outputs -------------------------------------------------------------------------
 
-    def _confidence(self, V: np.ndarray, frame: RGBDFrame) -> float:
-        """Fraction of vertices with depth evidence whose depth agrees.
+    def _assess(self, V: np.ndarray, frame: RGBDFrame, visible: np.ndarray, object_mask: np.ndarray) -> Assessment:
+        """The evidence for estimate ``V`` (N, 3) in ``frame`` (``perception.confidence``)."""
+        K = frame.camera.K
+        likeness = self._appearance.likeness(frame.rgb, V, self.mesh.faces, K, visible) \
+            if self._appearance is not None else 1.0
+        assessment = assess(V, self.mesh.faces, self._edges, self.mesh.spacing_m, visible, frame.depth_m, object_mask,
+                            K, self.config.confidence_tol_m, likeness)
+        self.last_assessment = assessment
+        return assessment
 
-        A vertex seen in front of the measured surface contradicts the data; one behind it
-        may be occluded and says nothing; one off the image or without depth says nothing.
-        Too little evidence (under a fifth of the vertices) lowers confidence in proportion.
-        """
-        h, w = frame.depth_m.shape
-        cols, rows, inside = pixel_index(project(V, frame.camera.K), w, h)
-        d = np.where(inside, frame.depth_m[rows, cols], np.nan)
-        z = V[:, 2]
-        known = np.isfinite(d) & (d > 0)
-        agree = known & (np.abs(d - z) < self.config.confidence_tol_m)
-        contradict = known & (d > z + self.config.confidence_tol_m)
-        evidence = agree.sum() + contradict.sum()
-        if evidence == 0:
-            return 0.0
-        conf = agree.sum() / evidence
-        return float(conf * min(1.0, evidence / (0.2 * len(V))))
-
-    def _estimate(self, frame, V, energies, iterations, confidence, t0, lost=None) -> MeshEstimate:
-        if lost is None:
-            lost = confidence < self.config.lost_confidence
+    def _estimate(self, frame, V, energies, iterations, assessment: Assessment | None, t0, visible) -> MeshEstimate:
+        """The MeshEstimate; ``assessment`` None means the object was not seen at all (lost)."""
+        confidence = 0.0 if assessment is None else assessment.confidence
+        lost = True if assessment is None else assessment.lost(self.config.lost_confidence)
+        self._visible = visible
         return MeshEstimate(
             vertices=V, faces=self._faces_out, boundary=self.mesh.boundary, canonical=self.mesh.canonical,
             timestamp_s=frame.timestamp_s, seq=frame.seq, energies=energies, iterations=iterations,
-            confidence=float(np.clip(confidence, 0.0, 1.0)), lost=lost,
-            timing_ms=(time.perf_counter() - t0) * 1000.0, frame_id=frame.camera.frame_id)
+            confidence=confidence, lost=lost,
+            timing_ms=(time.perf_counter() - t0) * 1000.0, frame_id=frame.camera.frame_id, visible=visible)
 
 
 def config_with(config: TrackerConfig, **changes) -> TrackerConfig:

@@ -82,3 +82,19 @@ def bent_points(uv: np.ndarray, centre: np.ndarray, size_m, radius_m: float) -> 
     x = radius_m * np.sin(ang)
     zz = radius_m * (1 - np.cos(ang))
     return np.column_stack([x, uv[:, 1] - size_m[1] / 2, zz]) + centre
+
+
+def with_occluder(frame: RGBDFrame, region: np.ndarray, depth_m: float, rng: np.random.Generator,
+                  known: bool = False) -> RGBDFrame:
+    """``frame`` with an object in front of it covering ``region`` (H, W) bool at ``depth_m``.
+
+    The object has a texture of its own (features on it must not bind to the sheet);
+    ``known`` also hands its mask to the tracker as ``RGBDFrame.occluder_mask``.
+    """
+    import cv2
+
+    rgb, depth = frame.rgb.copy(), frame.depth_m.copy()
+    blobs = cv2.GaussianBlur(rng.integers(0, 256, rgb.shape, dtype=np.uint8), (0, 0), 4)
+    rgb[region] = cv2.normalize(blobs, None, 40, 230, cv2.NORM_MINMAX)[region]
+    depth[region] = depth_m
+    return RGBDFrame(rgb, depth, frame.camera, frame.timestamp_s, frame.seq, occluder_mask=region if known else None)

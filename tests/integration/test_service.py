@@ -33,6 +33,7 @@ from ipc.messages import (
 )
 from ipc.transport import Publisher, RemoteError, RequestClient, Subscriber
 from perception import TrackerConfig
+from perception.tracker import config_with
 from perception.service import (
     MAX_MESH_VERTICES,
     MAX_VERTEX_STEPS,
@@ -202,7 +203,7 @@ def test_control_requests_round_trip(frames):
                                 ({"max_iterations": "ten"}, "'max_iterations': expected int, got str"),
                                 ({"alpha": -1.0}, r"'alpha': expected a value in \[0.001, 1000\], got -1.0"),
                                 ({"lambda_d": 1e300}, r"'lambda_d': expected a value in \[0, 100\], got 1e\+300"),
-                                ({"spacing_m": 0.002}, r"'spacing_m': expected a value in \[0.005, 1\]"),
+                                ({"spacing_m": 0.002}, r"'spacing_m': expected a value in 0 or \[0.005, 1\], got 0.002"),
                                 ({"solver": "newton"}, "solver method"),
                                 ({"segmentation": "on"}, "'segmentation' cannot be set over the wire")):
             with pytest.raises(RemoteError, match=message) as e:
@@ -338,7 +339,7 @@ def test_documented_ranges_and_budgets_are_the_services():
     doc = (Path(__file__).resolve().parents[2] / "docs" / "protocol.md").read_text()
     table = doc[doc.index("#### Parameters"):doc.index("Two budgets keep")]
     documented = {}
-    for names, allowed in re.findall(r"((?:`\w+`(?:, )?)+) \| ([\[(][-\d., ]+\])", table):
+    for names, allowed in re.findall(r"((?:`\w+`(?:, )?)+) \| ((?:0 or )?[\[(][-\d., ]+\])", table):
         for name in re.findall(r"`(\w+)`", names):
             documented[name] = allowed
     assert documented == {name: str(allowed) for name, allowed in PARAMETER_RANGES.items()}
@@ -357,17 +358,20 @@ def test_the_example_parameters_are_accepted_by_the_service():
 def test_parameters_out_of_range_or_over_budget_are_refused_and_change_nothing(frames):
     core = PerceptionCore(TrackerConfig.realtime())
     before = core.parameters()
-    with pytest.raises(ValueError, match=r"'spacing_m': expected a value in \[0.005, 1\], got 0.004"):
+    with pytest.raises(ValueError, match=r"'spacing_m': expected a value in 0 or \[0.005, 1\], got 0.004"):
         core.set_parameters({"spacing_m": 0.004})
+    with pytest.raises(ValueError, match=r"'target_vertices': expected a value in \[3, 5000\], got 6000"):
+        core.set_parameters({"target_vertices": 6000})
     core.handle_frame(frames[0])
-    n = core.tracker.mesh.n_vertices
-    assert core.expected_vertices(core.tracker.config) == n
-    # Quartering the spacing gives about 16 times the vertices: the object's size decides.
-    finer = core.tracker.config.spacing_m * math.sqrt(n / 6000)
+    mesh = core.tracker.mesh
+    n, spacing = mesh.n_vertices, mesh.spacing_m  # the spacing the tracker chose for about target_vertices
+    assert core.expected_vertices(config_with(core.tracker.config, spacing_m=spacing)) == n
+    # A finer spacing gives more vertices by the square of the ratio: the object's size decides.
+    finer = spacing * math.sqrt(n / 6000)
     with pytest.raises(ValueError, match=r"'spacing_m': .* over the budget of 5000; expected a spacing of at least"):
         core.set_parameters({"spacing_m": finer, "lambda_d": 0.3})
     with pytest.raises(ValueError, match=r"'max_iterations', 'init_iterations' and 'cg_iterations'"):
-        core.set_parameters({"max_iterations": 100, "cg_iterations": 100})
+        core.set_parameters({"target_vertices": 5000, "max_iterations": 100, "cg_iterations": 100})
     for params, message in (({"lambda_d": 1e300}, r"'lambda_d': expected a value in \[0, 100\]"),
                             ({"max_features": 10**6}, r"'max_features': expected a value in \[1, 2000\]"),
                             ({"tolerance_m": 0.0}, r"'tolerance_m': expected a value in \(0, 1\]"),
@@ -375,19 +379,20 @@ def test_parameters_out_of_range_or_over_budget_are_refused_and_change_nothing(f
         with pytest.raises(ValueError, match=message):
             core.set_parameters(params)
     assert core.parameters() == before  # every refused request left the old values in force
-    coarser = core.tracker.config.spacing_m * math.sqrt(n / 4000)
+    coarser = spacing * math.sqrt(n / 4000)
     core.set_parameters({"spacing_m": coarser, "max_iterations": 20})
     assert core.parameters()["spacing_m"] == coarser and core.parameters()["max_iterations"] == 20
 
 
 def test_without_a_mesh_the_last_frame_bounds_the_spacing(frames):
-    core = PerceptionCore(TrackerConfig.realtime(), auto_init=False)
+    core = PerceptionCore(TrackerConfig.realtime(spacing_m=0.03), auto_init=False)
     core.handle_frame(frames[0])  # idle: seen, not tracked; everything visible could be the object
     seen = core.expected_vertices(core.tracker.config)
     # The wall behind the sheet fills the image: far more than the sheet's own vertices.
     assert seen > 2 * 331
     with pytest.raises(ValueError, match="'spacing_m'"):
-        core.set_parameters({"spacing_m": core.tracker.config.spacing_m * math.sqrt(seen / 6000)})
+        core.set_parameters({"spacing_m": 0.03 * math.sqrt(seen / 6000)})
+    core.set_parameters({"spacing_m": 0.0})  # the tracker chooses it for target_vertices
 
 
 def test_apply_parameters_is_all_or_nothing():
@@ -446,3 +451,31 @@ def test_viewer_records_frames_and_meshes_or_names_its_extra(frames, tmp_path, m
     monkeypatch.setitem(sys.modules, "rerun", None)
     with pytest.raises(RuntimeError, match=r"live viewer needs the Python module 'rerun'.*clothkit\[viewer\]"):
         RerunViewer()
+
+
+def test_occluder_masks_reach_the_tracker_combined_and_only_for_their_frame(frames):
+    core = PerceptionCore(TrackerConfig.realtime())
+    seen = []
+    real_track = core.tracker.track
+    core.tracker.track = lambda frame: seen.append(frame.occluder_mask) or real_track(frame)
+    h, w = frames[0].depth_m.shape
+    left, top = np.zeros((h, w), np.uint8), np.zeros((h, w), bool)
+    left[:, :10] = 1
+    top[:5] = True
+    with pytest.raises(ValueError, match=r"OccluderMaskRequest.mask: expected shape \(240, 320\)"):
+        core.handle_frame(frames[0])  # initialises, and fixes the frame size
+        core.set_occluder_mask(np.ones((10, 10), np.uint8), seq=3)
+    core.set_occluder_mask(left)  # standing
+    core.set_occluder_mask(top, seq=2)
+    core.set_occluder_mask(top, seq=7)  # never arrives: dropped once a later frame passed
+    own = np.zeros((h, w), bool)
+    own[-1] = True
+    for seq in (1, 2, 3):
+        frame = dataclasses.replace(frames[seq], seq=seq, occluder_mask=own if seq == 3 else None)
+        assert core.handle_frame(frame) is not None
+    assert np.array_equal(seen[0], left > 0)
+    assert np.array_equal(seen[1], (left > 0) | top)
+    assert np.array_equal(seen[2], (left > 0) | own)
+    core.set_occluder_mask(None)  # clears the standing mask
+    core.handle_frame(dataclasses.replace(frames[4], seq=8))
+    assert seen[3] is None  # seq 7's mask was dropped when frame 8 came

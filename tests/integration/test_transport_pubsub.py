@@ -157,6 +157,18 @@ def test_publisher_killed_and_restarted(caplog):
         proc.wait(timeout=5)
 
 
+def publisher_on(endpoint, **kw) -> Publisher:
+    """A Publisher on an endpoint just closed: libzmq's I/O thread releases the port a moment later."""
+    deadline = time.monotonic() + 5.0
+    while True:
+        try:
+            return Publisher(endpoint, **kw)
+        except ValueError:
+            if time.monotonic() > deadline:
+                raise
+            time.sleep(0.05)
+
+
 def test_a_restart_without_silence_is_reported_once():
     restarts, events = [], []
     pub = Publisher(ANY_PORT, source="frames", heartbeat_period_s=0.05)
@@ -166,7 +178,7 @@ def test_a_restart_without_silence_is_reported_once():
                         on_liveness=lambda alive, s: events.append(alive)) as sub:
             assert wait_until(lambda: sub.last_heartbeat is not None and sub.last_heartbeat.seq >= 5, 5.0)
             pub.close()
-            pub = Publisher(endpoint, source="frames", heartbeat_period_s=0.05)  # same endpoint, seq from 0 again
+            pub = publisher_on(endpoint, source="frames", heartbeat_period_s=0.05)  # same endpoint, seq from 0 again
             assert wait_until(lambda: restarts, 5.0)
             time.sleep(0.3)
     finally:

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from perception.camera import backproject, project
-from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, SmoothnessTerm
+from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, MotionPriorTerm, SmoothnessTerm
 from perception.mesh import barycentric_matrix, rectangle_mesh
 
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
@@ -111,6 +111,40 @@ def outline_square(z, half=0.1, n=200):
     mask = np.zeros((480, 640), bool)
     mask[int(uv[0, 1]) : int(uv[1, 1]) + 1, int(uv[0, 0]) : int(uv[1, 0]) + 1] = True
     return outline, mask
+
+
+def test_depth_pulls_only_the_vertices_it_may():
+    rng = np.random.default_rng(5)
+    _, V = mesh_vertices(rng)
+    allowed = rng.random(len(V)) < 0.5
+    term = DepthTerm(range_image_of_plane(1.25), K, outlier_m=0.5, vertex_mask=allowed)
+    check_gradient(term, V)
+    _, grad = term.evaluate(V)
+    pull = np.linalg.norm(grad, axis=1)
+    assert pull[~allowed].max() == 0 and pull[allowed].min() > 0
+
+
+def test_motion_prior_gradient_and_what_it_keeps():
+    rng = np.random.default_rng(6)
+    m, V = mesh_vertices(rng)
+    prior = V + rng.normal(0, 0.01, V.shape)
+    hidden = m.material_xy[:, 0] > 0.2
+    term = MotionPriorTerm.around(m.edges(), hidden, prior)
+    check_gradient(term, V)
+    # The prior's shape moved rigidly costs only the anchor; observed vertices alone cost nothing.
+    shifted = prior + [0.02, -0.01, 0.03]
+    e_shift, _ = term.evaluate(shifted)
+    assert e_shift == pytest.approx(0.5 * 0.05 * hidden.sum() * (0.02**2 + 0.01**2 + 0.03**2))
+    moved_seen = prior.copy()
+    far = m.material_xy[:, 0] < 0.1  # observed and not next to a hidden vertex
+    moved_seen[far] += 0.05
+    assert term.evaluate(moved_seen)[0] == pytest.approx(0.0, abs=1e-15)
+    squeezed = prior.copy()
+    squeezed[hidden, 0] = prior[hidden, 0].min() + 0.5 * (prior[hidden, 0] - prior[hidden, 0].min())
+    assert term.evaluate(squeezed)[0] > 1e-4  # compressing the hidden part costs
+    H = term.gauss_newton(V)
+    P = rng.normal(size=V.shape)
+    np.testing.assert_allclose(H(P), term.evaluate(V + P)[1] - term.evaluate(V)[1], atol=1e-12)  # exact: quadratic
 
 
 def test_boundary_gradient_and_sign():

@@ -287,7 +287,7 @@ def test_header_errors():
     frames = encode(EXAMPLES[m.StatusRequest])
     top = header(frames)
     for key, value, match in [
-        ("version", 1, r"^header\.version: unsupported schema version 1; this decoder speaks 2$"),
+        ("version", 1, r"^header\.version: unsupported schema version 1; this decoder speaks 3$"),
         ("version", 1.0, r"header\.version: unsupported schema version 1\.0"),
         ("version", "1", r"header\.version: unsupported schema version '1'"),
         ("type", "Pickle", r"^header\.type: unknown message type 'Pickle'$"),
@@ -352,7 +352,7 @@ def test_limits_are_checked_before_decoding():
     total = sum(len(f) for f in frames)
     with pytest.raises(ProtocolError, match=f"message of {total} bytes exceeds the limit of 100"):
         decode(frames, Limits(max_message_bytes=100))
-    with pytest.raises(ProtocolError, match="message has 5 frames, over the limit of 2"):
+    with pytest.raises(ProtocolError, match="message has 6 frames, over the limit of 2"):
         decode(frames, Limits(max_frames=2))
     with pytest.raises(ProtocolError, match=r"RGBDFrame\.rgb: declared shape \[3, 4, 3\] needs 36 bytes, over the limit of 20"):
         decode(frames, Limits(max_array_bytes=20))

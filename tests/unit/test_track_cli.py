@@ -41,11 +41,32 @@ def test_writes_every_key_of_the_contract(seq, tmp_path):
     assert est["canonical"].dtype == np.float32
     np.testing.assert_allclose(est["timestamps"], 1.0 + np.arange(4) / 30, atol=1e-6)
     assert est["timing_ms"].shape == (T,) and np.all(est["timing_ms"] > 0)
+    assert est["confidence"].shape == (T,) and est["lost"].dtype == bool and not est["lost"].any()
+    assert est["visible"].shape == (T, N) and est["visible"].dtype == bool and est["visible"].mean() > 0.95
     # the sheet moved by SHIFT each frame: the estimate follows
     moved = est["vertices"][3] - est["vertices"][0]
     np.testing.assert_allclose(moved.mean(axis=0), 3 * SHIFT, atol=0.003)
     assert len(list((tmp_path / "ov").glob("*.png"))) == T
     assert (tmp_path / "ply" / "000003.ply").read_text().startswith("ply")
+
+
+def test_occluder_masks_hide_the_vertices_under_them(seq, tmp_path):
+    masks = tmp_path / "occluders"
+    masks.mkdir()
+    band = np.zeros((CAM.height, CAM.width), np.uint8)
+    band[:, 150:190] = 255
+    depth_names = sorted(p.name for p in (seq / "depth").iterdir())
+    for name in depth_names[1:]:  # none for the first frame: nothing known there
+        cv2.imwrite(str(masks / name), band)
+    out = tmp_path / "est.npz"
+    assert main([str(seq), "--output", str(out), "--quiet", "--occluder-masks", str(masks)]) == 0
+    est = np.load(out)
+    uv = est["vertices"][2][:, :2] / est["vertices"][2][:, 2:] * CAM.fx + [CAM.cx, CAM.cy]
+    under = (uv[:, 0] > 152) & (uv[:, 0] < 188)
+    assert under.sum() > 5 and not est["visible"][2][under].any() and est["visible"][2][~under].mean() > 0.9
+    assert est["visible"][0].all()
+    cv2.imwrite(str(masks / depth_names[0]), np.zeros((5, 5), np.uint8))
+    assert main([str(seq), "--output", str(out), "--quiet", "--occluder-masks", str(masks)]) == 2
 
 
 def test_init_mask_is_used(seq, tmp_path):

@@ -80,7 +80,7 @@ def test_smooth_bend_recovered(tex):
 def test_textureless_sheet_tracked_without_correspondences(tex):
     shifts = [np.array([0.01 * k, 0.0, 0.02 * k]) for k in range(7)]
     frames = [render(plane_points(UV, CENTRE + s, SIZE), tex, k, textured=False) for k, s in enumerate(shifts)]
-    tr = MeshTracker(TrackerConfig(features="sift"))
+    tr = MeshTracker(TrackerConfig(features="sift", spacing_m=0.03))
     e0 = tr.initialise(frames[0])
     assert tr._corr.n_model == 0  # nothing to match on a plain colour
     for f, s in zip(frames[1:], shifts[1:]):
@@ -91,11 +91,14 @@ def test_textureless_sheet_tracked_without_correspondences(tex):
 
 
 def test_depth_and_boundary_terms_matter_without_texture(tex):
-    """Ablation: with the depth and boundary terms off, a textureless sheet cannot follow a move."""
+    """Ablation: with the depth and boundary terms off, a textureless sheet cannot follow a move
+    (the coarse motion stage and re-acquisition, which would find the sheet from the images,
+    are off in both)."""
     shifts = [np.array([0.015 * k, 0.0, 0.03 * k]) for k in range(5)]
     frames = [render(plane_points(UV, CENTRE + s, SIZE), tex, k, textured=False) for k, s in enumerate(shifts)]
-    full = run(frames, TrackerConfig(features="sift"))
-    bare = run(frames, TrackerConfig(features="sift", use_depth=False, use_boundary=False))
+    terms_only = dict(features="sift", coarse_motion=False, reacquire_every=0)
+    full = run(frames, TrackerConfig(**terms_only))
+    bare = run(frames, TrackerConfig(use_depth=False, use_boundary=False, **terms_only))
     err_full = np.linalg.norm(full[-1].vertices - (full[0].vertices + shifts[-1]), axis=1).mean()
     err_bare = np.linalg.norm(bare[-1].vertices - (bare[0].vertices + shifts[-1]), axis=1).mean()
     assert err_bare > 0.05 > 5 * err_full
@@ -112,7 +115,7 @@ def test_wrong_matches_cannot_tear_the_mesh(tex, monkeypatch):
     """A third of the matches sent to random places: the inlier radius rejects them."""
     shifts = [np.array([0.01 * k, 0.005 * k, 0.0]) for k in range(6)]
     frames = [render(plane_points(UV, CENTRE + s, SIZE), tex, k) for k, s in enumerate(shifts)]
-    tr = MeshTracker(TrackerConfig(features="sift", use_boundary=False))
+    tr = MeshTracker(TrackerConfig(features="sift", use_boundary=False, spacing_m=0.03))
     e0 = tr.initialise(frames[0])
     rng = np.random.default_rng(0)
     real_match = tr._corr.match

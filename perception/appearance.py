@@ -1,0 +1,115 @@
+"""How the cloth's material points looked when the mesh was made, to check later views against.
+
+The samples are the mesh's vertices and the centroids of its faces, as material points
+(a sparse matrix S with ``S @ V`` their positions). Their colour is read from an image
+blurred to the mesh's resolution (a Gaussian of a third of its spacing in pixels): an
+estimate is good to a fraction of a spacing at best, so detail finer than that (a weave,
+a heathered yarn) would make a right estimate look wrong. A later estimate is checked on
+the same material points in its frame:
+
+- on a textured cloth, by the normalised correlation of their grey values: near 1 where
+  the mesh sits on the texture it was made on, near 0 on another surface, whatever the
+  change of overall brightness and contrast;
+- on a plain cloth, by their colour: the median ratio of brightness (a lamp or a turn
+  of the cloth changes it, within limits) and the median difference of chromaticity.
+
+Images are (H, W, 3) uint8 RGB; vertices (N, 3) metres in the camera frame; faces (M, 3).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import scipy.sparse as sp
+
+from perception.camera import project
+
+MIN_BLUR_PX = 1.5
+#: grey-level spread (standard deviation) above which a surface counts as textured
+MIN_SPREAD = 6.0
+MIN_SAMPLES = 20
+
+
+def _material_points(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
+    """(N + M, N) sparse: the vertices, then each face's centroid."""
+    m = len(faces)
+    centroid = sp.csr_matrix((np.full(3 * m, 1.0 / 3.0), (np.repeat(np.arange(m), 3), faces.ravel())),
+                             shape=(m, n_vertices))
+    return sp.vstack([sp.identity(n_vertices, format="csr"), centroid]).tocsr()
+
+
+def _colour_at(rgb: np.ndarray, uv: np.ndarray, blur_px: float) -> np.ndarray:
+    """Colour (P, 3) float32 at pixels (P, 2) of ``rgb`` blurred by a Gaussian of ``blur_px``; NaN outside."""
+    h, w = rgb.shape[:2]
+    inside = np.all(np.isfinite(uv), axis=1)
+    inside &= (uv[:, 0] >= 0) & (uv[:, 0] <= w - 1) & (uv[:, 1] >= 0) & (uv[:, 1] <= h - 1)
+    out = np.full((len(uv), 3), np.nan, np.float32)
+    if not inside.any():
+        return out
+    u, v = uv[inside, 0], uv[inside, 1]
+    pad = int(3 * blur_px) + 2
+    x0, x1 = max(0, int(u.min()) - pad), min(w, int(u.max()) + pad + 1)
+    y0, y1 = max(0, int(v.min()) - pad), min(h, int(v.max()) + pad + 1)
+    # A wide blur keeps nothing finer than itself: shrink the crop first (far cheaper), then
+    # blur what remains of it.
+    shrink = max(1, int(blur_px / MIN_BLUR_PX))
+    crop = rgb[y0:y1, x0:x1]
+    if shrink > 1:
+        crop = cv2.resize(crop, None, fx=1.0 / shrink, fy=1.0 / shrink, interpolation=cv2.INTER_AREA)
+    crop = cv2.GaussianBlur(crop.astype(np.float32), (0, 0), blur_px / shrink)
+    # pixel centres: x in the crop maps to (x + 0.5) / shrink - 0.5 in the shrunk one
+    mx = ((u - x0 + 0.5) / shrink - 0.5).astype(np.float32).reshape(-1, 1)
+    my = ((v - y0 + 0.5) / shrink - 0.5).astype(np.float32).reshape(-1, 1)
+    out[inside] = cv2.remap(crop, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, 3)
+    return out
+
+
+def _ramp(value: float, zero: float, one: float) -> float:
+    """0 at ``zero``, 1 at ``one``, linear between (either order), clipped."""
+    return float(np.clip((value - zero) / (one - zero), 0.0, 1.0))
+
+
+class AppearanceModel:
+    """Colours of the material points of a mesh in the frame it was made in.
+
+    rgb : (H, W, 3) uint8; vertices : (N, 3); faces : (M, 3) int; K : (3, 3);
+    visible : (N,) bool, the vertices seen in that frame; spacing_m : the mesh's edge length
+    """
+
+    def __init__(self, rgb: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, visible: np.ndarray,
+                 spacing_m: float):
+        self.S = _material_points(np.asarray(faces), len(vertices))
+        spacing_px = K[0, 0] * spacing_m / float(np.median(vertices[:, 2]))
+        self.blur_px = max(MIN_BLUR_PX, spacing_px / 3.0)
+        self.colours = _colour_at(rgb, project(self.S @ vertices, K), self.blur_px)
+        self.colours[~self._seen(visible, faces)] = np.nan
+        known = np.all(np.isfinite(self.colours), axis=1)
+        grey = self.colours[known].mean(axis=1)
+        self.textured = bool(known.sum() >= MIN_SAMPLES and np.std(grey) >= MIN_SPREAD)
+
+    @staticmethod
+    def _seen(visible: np.ndarray, faces: np.ndarray) -> np.ndarray:
+        return np.concatenate([visible, np.all(visible[faces], axis=1)])
+
+    def likeness(self, rgb: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray,
+                 visible: np.ndarray) -> float:
+        """In [0, 1]: how alike the material points seen now look to how they looked at the
+        start (see the module docstring); 1 when too few are seen in both to tell."""
+        now = _colour_at(rgb, project(self.S @ vertices, K), self.blur_px)
+        both = np.all(np.isfinite(now), axis=1) & np.all(np.isfinite(self.colours), axis=1) & self._seen(visible, faces)
+        if both.sum() < MIN_SAMPLES:
+            return 1.0
+        before, now = self.colours[both], now[both]
+        if self.textured:
+            a, b = before.mean(axis=1), now.mean(axis=1)
+            a, b = a - a.mean(), b - b.mean()
+            spread = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
+            ncc = float(np.sum(a * b) / spread) if spread > 1e-6 else 0.0
+            self.last_value = ncc
+            return _ramp(ncc, 0.15, 0.4)
+        bright_before, bright_now = before.sum(axis=1) + 3.0, now.sum(axis=1) + 3.0  # + 3: no division by black
+        ratio = float(np.median(bright_now / bright_before))
+        chroma = float(np.median(np.linalg.norm(now / bright_now[:, None] - before / bright_before[:, None], axis=1)))
+        self.last_value = (ratio, chroma)
+        brightness = min(_ramp(ratio, 0.35, 0.6), _ramp(ratio, 3.0, 1.7))
+        return brightness * _ramp(chroma, 0.12, 0.04)

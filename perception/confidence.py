@@ -1,0 +1,98 @@
+"""How much to trust an estimate: the evidence for it, each part in [0, 1], and their product.
+
+A robot grasps where the estimate says the cloth is, so a wrong estimate must say so. One
+cue alone is fooled: depth agrees as well on a wall as on the cloth, a mesh squeezed into
+part of the cloth agrees everywhere it lies, a textureless cloth gives appearance nothing
+to compare. So confidence multiplies the cues, each mapped to [0, 1] so that an estimate
+that is right scores about 1 on it:
+
+- ``depth``: of the vertices seen, the fraction whose measured depth agrees with them
+  (within ``tol_m``); a vertex the camera sees through, or one more than ``tol_m`` behind
+  the measured surface, disagrees;
+- ``coverage``: the fraction of the segmented object that the projected mesh covers (a
+  mesh squeezed or slid off part of the object leaves it uncovered);
+- ``precision``: the fraction of the vertices seen that project onto the object;
+- ``appearance``: how alike the mesh's material points look now and when the mesh was
+  made: their texture (normalised correlation), or on a plain cloth their colour (a mesh
+  on the wrong surface sees another texture or colour);
+- ``unstretched``: cloth hardly stretches, so a mesh whose edges are much longer than in
+  the canonical mesh (median over the edges) has been pulled onto something else, such as
+  a surface farther away;
+- ``seen``: how much of the mesh the camera sees (a mesh almost entirely hidden is carried
+  by its motion prior, not by data).
+
+Arrays: vertices (N, 3) metres, camera frame; images and masks (H, W).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from perception.camera import pixel_index, project
+from perception.raster import faces_mask
+
+#: cue value below which an estimate is lost whatever the others say
+FLOOR = 0.25
+
+
+@dataclass(frozen=True)
+class Assessment:
+    """The cues of one estimate, each in [0, 1]; see the module docstring."""
+
+    depth: float
+    coverage: float
+    precision: float
+    appearance: float
+    unstretched: float
+    seen: float
+
+    @property
+    def confidence(self) -> float:
+        product = self.depth * self.coverage * self.precision * self.appearance * self.unstretched * self.seen
+        return float(np.clip(product, 0.0, 1.0))
+
+    def lost(self, threshold: float) -> bool:
+        """True when the product is below ``threshold`` or any cue is below ``FLOOR``."""
+        return self.confidence < threshold or min(asdict(self).values()) < FLOOR
+
+    def as_dict(self) -> dict:
+        return {**asdict(self), "confidence": self.confidence}
+
+
+def _ramp(value: float, good: float) -> float:
+    """0 at 0, rising linearly to 1 at ``good`` and above."""
+    return float(np.clip(value / good, 0.0, 1.0))
+
+
+def assess(vertices: np.ndarray, faces: np.ndarray, edges: np.ndarray, rest_length_m: float, visible: np.ndarray,
+           depth_m: np.ndarray, object_mask: np.ndarray, K: np.ndarray, tol_m: float, appearance: float) -> Assessment:
+    """The Assessment of an estimate.
+
+    vertices : (N, 3); faces : (M, 3) int; visible : (N,) bool, the vertices seen
+    edges : (E, 2) int, the mesh's edges; rest_length_m : their length in the canonical mesh
+    depth_m : (H, W) float32 measured depth (0 or NaN: none); object_mask : (H, W) bool, the
+    segmented object (known occluders excluded); K : (3, 3)
+    tol_m : depth agreement tolerance, metres
+    appearance : in [0, 1], how alike the material points look now and at the start
+        (``perception.appearance.AppearanceModel.likeness``)
+    """
+    n = len(vertices)
+    h, w = depth_m.shape
+    uv = project(vertices, K)
+    cols, rows, inside = pixel_index(uv, w, h)
+    seen = visible & inside
+    d = depth_m[rows, cols]
+    measured = seen & np.isfinite(d) & (d > 0)
+    agree = measured & (np.abs(d - vertices[:, 2]) < tol_m)
+    depth = agree.sum() / measured.sum() if measured.any() else 0.0
+    precision = (seen & object_mask[rows, cols]).sum() / seen.sum() if seen.any() else 0.0
+    # Coverage at half resolution: a quarter of the drawing and counting, the same fraction.
+    half = object_mask[::2, ::2]
+    area = half.sum()
+    coverage = (faces_mask((uv + 0.5) / 2.0 - 0.5, faces, half.shape) & half).sum() / area if area else 0.0
+    stretch = float(np.median(np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1))) / rest_length_m
+    return Assessment(depth=_ramp(depth, 0.85), coverage=_ramp(coverage, 0.8), precision=_ramp(precision, 0.85),
+                      appearance=float(appearance), unstretched=float(np.clip((1.6 - stretch) / 0.4, 0.0, 1.0)),
+                      seen=_ramp(seen.sum() / max(n, 1), 0.25))

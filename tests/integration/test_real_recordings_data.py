@@ -1,0 +1,53 @@
+"""The converted public recordings, where they have been made (see README, "Real recordings").
+
+They live outside the repository, under $CLOTHKIT_DATA (default /work/data); each test skips
+when its recording is absent.
+"""
+
+import json
+
+import numpy as np
+import pytest
+
+from perception.camera import backproject, project
+from perception.recordings import KINECT_V1_K, data_root, read_groundtruth_flow, read_reference_masks
+from perception.sequence import open_sequence
+
+
+def recording(name):
+    path = data_root() / name
+    if not (path / "rgb.txt").is_file():
+        pytest.skip(f"{path} not converted (python -m launch_scripts.convert_recording ...)")
+    return open_sequence(path)
+
+
+def test_foam_tube_has_its_frames_and_a_reference_mask_each():
+    seq = recording("foam_tube")
+    assert len(seq) == 80 and (seq.camera.width, seq.camera.height) == (640, 480)
+    np.testing.assert_array_equal(seq.camera.K, KINECT_V1_K)
+    masks = read_reference_masks(seq)
+    if not masks:
+        pytest.skip("no reference masks yet (python -m launch_scripts.reference_masks)")
+    assert sorted(masks) == list(range(80))
+    for i in (0, 40, 79):
+        frame = seq.frame(i)
+        z = frame.depth_m[masks[i]]
+        assert 0.4 < np.median(z) < 0.7 and (z > 0).mean() > 0.95  # the tube, half a metre away, measured
+        # a 5 cm tube about 35 cm long at ~0.55 m: roughly 10000 to 20000 pixels
+        assert 8000 < masks[i].sum() < 22000
+
+
+def test_deepdeform_shirt_flow_conventions_agree():
+    seq = recording("deepdeform_shirt_seq258")
+    (pair,) = read_groundtruth_flow(seq)
+    frame = seq.frame(pair.source)
+    known = np.isfinite(pair.scene_flow_m).all(axis=2) & (frame.depth_m > 0)
+    rows, cols = np.nonzero(known)
+    pixels = np.stack([cols, rows], axis=1).astype(float)
+    moved = backproject(pixels, frame.depth_m[rows, cols], seq.camera.K) + pair.scene_flow_m[rows, cols]
+    # scene flow (metres, camera frame) and optical flow (pixels) describe the same motion
+    gap = np.linalg.norm(project(moved, seq.camera.K) - (pixels + pair.optical_flow_px[rows, cols]), axis=1)
+    assert np.median(gap) < 1.0
+    assert np.median(np.linalg.norm(pair.optical_flow_px[rows, cols], axis=1)) > 80  # the large motion
+    info = json.loads((seq.path / "recording.json").read_text())
+    assert info["format"] == "deepdeform" and info["frame_numbers"] == [0, 110]

@@ -1,0 +1,76 @@
+"""benchmarks/real_recordings.py on a small converted recording made here (a textured sheet
+moving in front of the camera, its true footprint as the reference mask)."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ipc.messages import CameraInfo
+from perception.camera import project
+from perception.raster import faces_mask
+from perception.recordings import write_reference_masks
+from perception.sequence import SequenceWriter, open_sequence
+from perception.tracker import TrackerConfig
+from tests.render import frame_of, grid_surface, plane_points, texture
+
+spec = importlib.util.spec_from_file_location(
+    "real_recordings", Path(__file__).resolve().parents[2] / "benchmarks" / "real_recordings.py")
+bench = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(bench)
+
+CAM = CameraInfo.from_fov(320, 240, np.deg2rad(45))
+SIZE = (0.6, 0.45)
+UV, FACES = grid_surface(*SIZE, 21, 16)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    root = tmp_path_factory.mktemp("data")
+    tex = texture(np.random.default_rng(3))
+    footprints = {}
+    with SequenceWriter(root / "sheet", CAM, depth_scale=1000.0) as w:
+        for k in range(4):
+            pts = plane_points(UV, np.array([0.01 * k, 0, 1.3]), SIZE)
+            w.write(frame_of(pts, UV, FACES, tex, CAM, SIZE, t=k / 30, seq=k))
+            footprints[k] = faces_mask(project(pts, CAM.K), FACES, (CAM.height, CAM.width))
+    write_reference_masks(open_sequence(root / "sheet"), footprints, {k: "true footprint" for k in footprints})
+    return root
+
+
+def test_scores_a_tracked_sheet_and_writes_json_and_pictures(data, tmp_path, capsys):
+    out = tmp_path / "summary.json"
+    assert bench.main(["--data", str(data), "--preset", "realtime", "--set", "spacing_m=0.05", "--json", str(out),
+                       "--pictures", str(tmp_path), "-q"]) == 0
+    report = json.loads(out.read_text())
+    run = report["recordings"]["sheet"]["runs"]["realtime"]
+    assert run["config"]["spacing_m"] == 0.05 and run["config"]["features"] == "klt"
+    s = run["summary"]
+    assert s["frames"] == 4 and s["frames_with_mask"] == 4 and s["lost_frames"] == 0
+    assert s["coverage_min"] > 0.85 and s["on_mask_min"] > 0.95 and s["frames_meeting_target"] == 4
+    assert [f["frame"] for f in run["frames"]] == [0, 1, 2, 3]
+    assert Path(run["picture"]).is_file()
+    assert "sheet" in capsys.readouterr().out
+
+
+def test_overrides_reach_nested_fields_and_unknown_names_fail():
+    cfg = bench.with_overrides(TrackerConfig(), bench.parse_overrides(
+        ["spacing_m=0.01", "outlier_radii_m=(0.04, 0.02)", "features=orb"]))
+    assert cfg.spacing_m == 0.01 and cfg.outlier_radii_m == (0.04, 0.02) and cfg.features == "orb"
+    field = next(iter(TrackerConfig().segmentation.__dataclass_fields__))
+    value = getattr(TrackerConfig().segmentation, field)
+    nested = bench.with_overrides(TrackerConfig(), {f"segmentation.{field}": value})
+    assert getattr(nested.segmentation, field) == value
+    with pytest.raises(ValueError, match="unknown TrackerConfig parameter.*spacing"):
+        bench.with_overrides(TrackerConfig(), {"spacing": 0.01})
+    with pytest.raises(ValueError, match="NAME=VALUE"):
+        bench.parse_overrides(["spacing_m"])
+
+
+def test_bad_arguments_exit_2_with_one_line(tmp_path, capsys):
+    assert bench.main(["--data", str(tmp_path / "none"), "-q"]) == 2
+    assert bench.main(["--data", str(tmp_path), "--set", "nope=1", "-q"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and "no such folder" in err[0] and "nope" in err[1]
