@@ -13,8 +13,8 @@ Every --sample-period-s the resident memory (VmRSS) of every process is sampled:
 pipeline, its two children, the planner and this client. The summary (JSON, and a table
 on stdout) gives per process the RSS after the warm-up, at the end, the largest, and the
 growth after the warm-up (end minus start, and the slope of a least-squares line through
-the samples, MB per hour); the service's counters at the end; and the requests answered,
-refused and unanswered. Exit status 0 when every process lived to the end, 1 otherwise.
+the samples, MB per hour) and every sample (seconds, MB); the service's counters at the
+end; and the requests answered, refused and unanswered. Exit status 0 when every process lived to the end, 1 otherwise.
 Run it on a quiet machine; it needs about 1.3 cores.
 """
 
@@ -192,7 +192,7 @@ def soak(args, ends: dict, planner_endpoint: str, pipeline: subprocess.Popen, pl
                            "rss_mb_max": round(max(mb for _, mb in series), 1),
                            "growth_mb": round(values[-1] - values[0], 1),
                            "slope_mb_per_hour": None if (s := slope_mb_per_hour(times, values)) is None else round(s, 2),
-                           "samples": len(series)}
+                           "samples": [[round(t, 1), round(mb, 2)] for t, mb in series]}
     counters = None
     if status is not None:
         counters = {k: getattr(status, k) for k in ("state", "frames_received", "frames_tracked", "frames_dropped",
