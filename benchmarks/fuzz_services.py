@@ -124,10 +124,10 @@ def corpus_of(*types) -> list:
     return [frames for frames in CORPUS if msgpack.unpackb(frames[0], strict_map_key=False).get("type") in types]
 
 
-def start(args: list[str]) -> tuple[subprocess.Popen, dict]:
+def start(args: list[str], log) -> tuple[subprocess.Popen, dict]:
     env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen([sys.executable, "-m", *args], stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True,
-                            cwd=REPO, env=env)
+    proc = subprocess.Popen([sys.executable, "-m", *args], stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, stderr=log,
+                            text=True, cwd=REPO, env=env)
     line = proc.stdout.readline()
     if not line.startswith("{"):
         proc.kill()
@@ -307,7 +307,9 @@ def main(argv=None) -> int:
     p.add_argument("--timeout-s", type=float, default=5.0, help="longest wait for a reply (default 5)")
     p.add_argument("--seed", type=int, default=20261130)
     p.add_argument("--output", type=Path)
+    p.add_argument("--services-log", type=Path, default=Path(os.devnull), help="where the services' logs go")
     args = p.parse_args(argv)
+    services_log = args.services_log.open("a")
 
     ctx = zmq.Context.instance()
     pub = ctx.socket(zmq.PUB)
@@ -319,11 +321,11 @@ def main(argv=None) -> int:
     try:
         perception, ends = start(["launch_scripts.perception_service", "--frames", frames_endpoint, "--estimates",
                                   "tcp://127.0.0.1:*", "--control", "tcp://127.0.0.1:*", "--print-endpoints",
-                                  "--preset", "realtime", "--reinit-after-lost", "5"])
+                                  "--preset", "realtime", "--reinit-after-lost", "5"], services_log)
         procs["perception_service"] = perception
         planner_proc, planner_end = start(["launch_scripts.planner_service", "--estimates", ends["estimates"], "--frames",
                                            frames_endpoint, "--bind", "tcp://127.0.0.1:*", "--print-endpoint",
-                                           "--log-level", "ERROR"])
+                                           "--log-level", "ERROR"], services_log)
         procs["planner_service"] = planner_proc
         time.sleep(1.0)
         watch = MemoryWatch({name: proc.pid for name, proc in procs.items()})
@@ -347,6 +349,7 @@ def main(argv=None) -> int:
             except subprocess.TimeoutExpired:
                 proc.kill()
         pub.close()
+        services_log.close()
     if args.output is not None:
         args.output.write_text(json.dumps(results, indent=2) + "\n")
     ok = all(all(r["alive"].values()) and not r["internal"] and not sum(r["unanswered"].values()) for r in results)

@@ -235,6 +235,27 @@ def create_key_directory(directory: str | Path, clients=("controller",)) -> list
     return written
 
 
+class _WarningEvery:
+    """Logs a warning at most once per ``period_s`` seconds and says how many were not logged,
+    so that a peer sending garbage in a loop cannot flood the log (every one is still counted)."""
+
+    def __init__(self, period_s: float = 1.0):
+        self.period_s = period_s
+        self._next = -math.inf
+        self._suppressed = 0
+
+    def __call__(self, message: str, *args) -> None:
+        now = time.monotonic()
+        if now < self._next:
+            self._suppressed += 1
+            return
+        if self._suppressed:
+            message += f" ({self._suppressed} more like it in the last {self.period_s:g} s not logged)"
+        self._suppressed = 0
+        self._next = now + self.period_s
+        log.warning(message, *args)
+
+
 class _AuthorizedKeys:
     """ZAP credentials provider (pyzmq's callback protocol): accept listed client keys only."""
 
@@ -417,7 +438,8 @@ class Subscriber:
     counted whether or not a newer one replaces it. Counters (ints, read any time):
     ``received`` (messages of any type), ``skipped`` (data messages, decoded and valid,
     replaced by a newer one before ``recv_latest`` took them), ``malformed`` (dropped as
-    ProtocolError, each logged), ``reconnects`` (connections lost and opened again).
+    ProtocolError; logged at most once a second, with how many were not, so that a publisher
+    sending garbage cannot flood the log), ``reconnects`` (connections lost and opened again).
 
     Connections: libzmq drops a connection whose peer sends a frame larger than the
     message cap (``ZMQ_MAXMSGSIZE``) and, for a connecting socket, never reconnects it
@@ -468,6 +490,7 @@ class Subscriber:
         self._stale = False
         self._beat_after_silence = False  # the next heartbeat is the first after a silence
         self.received = self.skipped = self.malformed = self.reconnects = 0
+        self._warn_malformed = _WarningEvery()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"subscriber {endpoint}", daemon=True)
         self._thread.start()
@@ -642,7 +665,7 @@ class Subscriber:
     def _count_malformed(self, error: ProtocolError) -> None:
         with self._cond:
             self.malformed += 1
-        log.warning("%s: dropped a malformed message: %s", self.endpoint, error)
+        self._warn_malformed("%s: dropped a malformed message: %s", self.endpoint, error)
 
 
 class RequestClient:
@@ -726,7 +749,8 @@ class ReplyServer:
 
     handlers : request class -> callable(request) -> reply message. A request of another
         type is answered ErrorReply("unsupported"); one that cannot be decoded,
-        ErrorReply("protocol"); a handler raising ValueError, ErrorReply("invalid");
+        ErrorReply("protocol") (logged at most once a second); a handler raising ValueError,
+        ErrorReply("invalid");
         raising anything else (logged with its traceback), ErrorReply("internal").
         A handler may also return an ErrorReply itself (e.g. "not_ready").
     limits, curve : decoder caps for requests, CurveServer or None
@@ -749,6 +773,7 @@ class ReplyServer:
         self.handlers = dict(handlers)
         self.limits = limits
         self._socket = _Socket(zmq.REP, endpoint, bind=True, limits=limits, curve=curve)
+        self._warn_malformed = _WarningEvery()
         self.endpoint = self._socket.endpoint
         log.info("%s: serving %s", self.endpoint, ", ".join(cls.__name__ for cls in self.handlers))
 
@@ -762,7 +787,7 @@ class ReplyServer:
         try:
             request = decode(_recv_message(sock, self.limits), self.limits)
         except ProtocolError as e:
-            log.warning("%s: malformed request: %s", self.endpoint, e)
+            self._warn_malformed("%s: malformed request: %s", self.endpoint, e)
             reply = ErrorReply("protocol", str(e))
         else:
             reply = self._handle(request)

@@ -296,7 +296,7 @@ def test_oversize_messages_do_not_deafen_the_subscriber():
         raw.close()
 
 
-def test_malformed_messages_in_a_burst_are_each_counted_not_skipped():
+def test_malformed_messages_in_a_burst_are_each_counted_not_skipped(caplog):
     """Messages are decoded as they arrive: malformed ones among frames the consumer never
     took are counted as malformed, and only valid frames count as skipped. The malformed
     ones here have a valid header (an RGBDFrame) and a buffer a byte short."""
@@ -322,5 +322,8 @@ def test_malformed_messages_in_a_burst_are_each_counted_not_skipped():
             assert wait_until(lambda: sub.received - start == 40, 5.0), sub.received - start
             assert sub.malformed == 20 and sub.skipped == 19
             assert sub.recv_latest(timeout_s=0.1) is not None
+            # Counted one by one, logged at most once a second: garbage cannot flood the log.
+            logged = [r for r in caplog.records if "dropped a malformed message" in r.getMessage()]
+            assert 1 <= len(logged) <= 2
     finally:
         raw.close()
