@@ -9,8 +9,9 @@ of the default tracker and the realtime preset then tracks:
 - ``dropped``: the same frames with every other one dropped (15 Hz, timestamps kept);
 
 the last two once without and once with the occluder's exact mask in the frames
-(``RGBDFrame.occluder_mask``, "known masks"). Every run starts from the true cloth mask of
-the first frame, so the table measures tracking, not the first frame's segmentation.
+(``RGBDFrame.occluder_mask``, "known masks"). Every run starts from the true mask of the
+cloth as seen in its first frame (without what the occluder hides), so the table measures
+tracking, not the first frame's segmentation.
 Scores (``sim.handled_evaluation``) are pooled over the seeds in the table; the JSON keeps
 every seed's scores and per-frame series.
 """
@@ -48,7 +49,6 @@ def evaluate_handled(name: str, seed: int, noise: bool, fig_dir: Path | None, pr
     recs = {"occluder": record_scene(name, seed=seed, noise=noise, n_frames=None, progress=progress),
             "clear": record_scene(name, seed=seed, noise=noise, n_frames=None, progress=progress, occluders=False)}
     recs["dropped"] = recs["occluder"].every(2)
-    init_mask = recs["occluder"].masks[0]
     hidden = cloth_hidden_fraction(recs["occluder"])
     out = {"frames": len(recs["occluder"].frames), "cloth_vertices": int(recs["occluder"].gt_vertices.shape[1]),
            "cloth_hidden_fraction": [round(float(x), 4) for x in hidden], "runs": {}, "series": {}}
@@ -58,7 +58,7 @@ def evaluate_handled(name: str, seed: int, noise: bool, fig_dir: Path | None, pr
             rec = recs[variant]
             frames = rec.known_occluder_frames() if known else rec.frames
             label = f"{name} s{seed} {preset} {variant_key(variant, known)}"
-            estimates, failure = track_frames(frames, make_config(), init_mask, label, progress)
+            estimates, failure = track_frames(frames, make_config(), rec.masks[0], label, progress)
             scores[preset, variant, known] = score_run(rec, estimates, failure)
         for variant, known in VARIANTS:
             score = scores[preset, variant, known]

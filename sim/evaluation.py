@@ -42,7 +42,6 @@ class SceneRecording:
         the scene has no occluders
     occluder_depths : list of (H, W) float32 metres, the occluder's exact depth where it is
         seen, 0 elsewhere; empty when the scene has no occluders
-    occluders : whether the occluders were drawn (False: the twin without them)
     frame_step : 1, or k when only every k-th simulated frame was kept (timestamps stay true)
     """
 
@@ -55,7 +54,6 @@ class SceneRecording:
     masks: list = field(default_factory=list)
     occluder_masks: list = field(default_factory=list)
     occluder_depths: list = field(default_factory=list)
-    occluders: bool = True
     frame_step: int = 1
 
     def every(self, step: int) -> SceneRecording:
@@ -66,7 +64,7 @@ class SceneRecording:
         k = int(step)
         return SceneRecording(self.name, self.seed, self.noise, self.frames[::k], self.gt_vertices[::k],
                               self.gt_faces, self.masks[::k], self.occluder_masks[::k], self.occluder_depths[::k],
-                              self.occluders, self.frame_step * k)
+                              self.frame_step * k)
 
     def known_occluder_frames(self) -> list:
         """The frames carrying the exact occluder mask (``RGBDFrame.occluder_mask``), as a robot
@@ -110,12 +108,11 @@ class TrackRun:
 
 
 def record_scene(name: str, seed: int = 0, noise: bool = True, n_frames: int | None = 60, progress: bool = True,
-                 occluders: bool = True, frame_step: int = 1) -> SceneRecording:
+                 occluders: bool = True) -> SceneRecording:
     """Run the registered scene ``name`` and keep every frame with its ground truth.
 
     n_frames : simulated frames (None: the scene's own script length)
-    occluders : draw the scene's occluders (False: its twin)
-    frame_step : keep every ``frame_step``-th simulated frame only (``SceneRecording.every``)
+    occluders : draw the scene's occluders (False: its twin); ``SceneRecording.every`` drops frames
     """
     from sim.scenes import make_scene  # PyBullet only when a scene is actually run
 
@@ -132,9 +129,7 @@ def record_scene(name: str, seed: int = 0, noise: bool = True, n_frames: int | N
                 occluder_masks.append(seen)
                 occluder_depths.append(np.where(seen, scene.exact_depth_m(), np.float32(0.0)))
         faces = np.asarray(scene.faces)
-    rec = SceneRecording(name, seed, noise, frames, np.stack(gts), faces, masks, occluder_masks, occluder_depths,
-                         occluders)
-    return rec if frame_step == 1 else rec.every(frame_step)
+    return SceneRecording(name, seed, noise, frames, np.stack(gts), faces, masks, occluder_masks, occluder_depths)
 
 
 def track_recording(rec: SceneRecording, config: TrackerConfig, label: str = "tracker",

@@ -43,7 +43,6 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-
 from scipy.spatial.transform import Rotation
 
 from ipc.messages import CameraInfo, RGBDFrame
@@ -339,6 +338,8 @@ def towel_sway_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
 HANDLED_FRAMES = (60, 90)
 #: Seconds each handled script runs on after its motion, so recovery can be seen.
 _AFTER_S = 0.5
+#: Half extents (x, y) of the table of ``table_lift``, metres.
+TABLE_HALF_XY_M = (0.6, 0.4)
 
 
 def _frames_for(duration_s: float) -> int:
@@ -472,9 +473,10 @@ def occluder_sweep_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSp
     """An arm- or hand-sized bar or capsule sweeps across in front of a hanging printed cloth.
 
     The cloth (0.45-0.75 m by 0.35-0.60 m) hangs from its top corners, which sway 2-8 cm
-    sideways and up to 3 cm back and forth, so that the hidden part moves too. The occluder, 6-12 cm wide and 0.5-0.8 m long (a box or a capsule), lies
-    20-40 cm in front of the cloth with its long axis up or down (within 20 degrees of
-    square to its path) and moves at a constant 0.35-1.0 m/s (faster when a slow pass would
+    sideways and up to 3 cm back and forth, so that the hidden part moves too. The
+    occluder, 6-12 cm wide and 0.5-0.8 m long (a box or a capsule), lies 20-40 cm in
+    front of the cloth with its long axis up or down (within 20 degrees of square to its
+    path) and moves at a constant 0.35-1.0 m/s (faster when a slow pass would
     not fit in 90 frames), left to right or right to left, up to 25 degrees off the
     horizontal, from wholly beside the cloth to wholly beyond its other side as the camera
     sees them. The camera stands 1.1-1.35 m in front of the cloth.
@@ -625,9 +627,6 @@ def gripper_corner_move_spec(rng: np.random.Generator, camera: CameraInfo) -> Sc
     )
 
 
-TABLE_HALF_XY_M = (0.6, 0.4)
-
-
 def table_lift_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
     """A printed cloth lying flat on a table is lifted by one corner at robot speed until it hangs.
 
@@ -756,9 +755,14 @@ class ClothScene:
         self._noise_rng = np.random.default_rng(noise_seq)
         self.close()
         spec = self.spec
+        n_grippers = len(spec.gripper_poses(0.0))
+        for event in spec.grasp_events:
+            if round(event.time_s * self.fps) < 1 or not 0 <= event.gripper < n_grippers:
+                raise ValueError(f"{self.name}: a grasp must come after frame 0 and name one of the {n_grippers} "
+                                 f"grippers, got {event}")
         self.physics = ClothPhysics(timestep_s=spec.timestep_s)
-        for box_ in spec.boxes:
-            self.physics.add_box(box_.half_extents_m, box_.position, box_.quat_xyzw, box_.rgba)
+        for scenery in spec.boxes:
+            self.physics.add_box(scenery.half_extents_m, scenery.position, scenery.quat_xyzw, scenery.rgba)
         self.cloth_id = self.physics.add_cloth(spec.cloth, spec.cloth_vertices_world, spec.material)
         if spec.substeps != 1:
             self.physics.set_timestep(spec.timestep_s / spec.substeps)
