@@ -30,7 +30,15 @@ from launch_scripts.evaluate import write_section
 from perception.tracker import TrackerConfig
 from sim.evaluation import SceneRecording, record_scene
 from sim.figures import error_with_occlusion, overlay_strip
-from sim.handled_evaluation import CONFIDENT, WRONG_MM, HandledScore, cloth_hidden_fraction, score_run, track_frames
+from sim.handled_evaluation import (
+    CONFIDENT,
+    WORST_AREA_MIN,
+    WRONG_MM,
+    HandledScore,
+    cloth_hidden_fraction,
+    score_run,
+    track_frames,
+)
 
 log = logging.getLogger("launch_scripts.evaluate")
 
@@ -155,14 +163,16 @@ def markdown(results: dict, seeds: list[int], noises: tuple) -> str:
              "Variants: `clear` is the same scene without the occluder drawn (same cloth motion); `occluder` "
              "every frame at 30 Hz; `dropped` every other frame (15 Hz, true timestamps). Masks: whether the "
              "frames carry the occluder's exact mask (`RGBDFrame.occluder_mask`). Every run starts from the true "
-             "cloth mask of the first frame.", "",
+             "mask of the cloth as seen in its first frame.", "",
              "Columns, pooled over the seeds: error = material-point error, mean / 95th percentile in mm (means "
              "over seeds); ÷ clear = mean error over the clear twin's (mean over seeds, worst seed); ÷ full rate "
              "= the dropped run's mean error over the full-rate run's on the same frames; occluded area = area of "
-             "the estimated faces whose vertices are all truly hidden behind the occluder, over the same faces' "
-             "canonical area (1 = kept its size; in brackets the frame farthest from 1); lost = frames flagged "
-             f"lost; wrong & confident = frames whose mean error exceeds {WRONG_MM:.0f} mm while the tracker's "
-             f"confidence is {CONFIDENT} or more (wrong: {WRONG_MM:.0f} mm); ms = median tracking time per frame.",
+             "the estimated faces whose three vertices are truly hidden (their material point projects onto the "
+             "occluder's exact mask and lies behind it), over the same faces' canonical area, area-weighted over "
+             "frames (1 = kept its size; in brackets the frame farthest from 1 among frames whose hidden faces "
+             f"hold at least {100 * WORST_AREA_MIN:.0f} % of the mesh); lost = frames flagged lost; wrong & "
+             f"confident = frames whose mean vertex error exceeds {WRONG_MM:.0f} mm (wrong) while the tracker's "
+             f"confidence is {CONFIDENT} or more; ms = median tracking time per frame.",
              "",
              "| scene | variant | masks | preset | error (mm) | ÷ clear | ÷ full rate | occluded area | lost | "
              "wrong & confident | ms |",
@@ -173,7 +183,9 @@ def markdown(results: dict, seeds: list[int], noises: tuple) -> str:
         if "mean_mm" not in r:
             lines.append(head + "failed: " + "; ".join(r["failures"]) + " | | | | | | |")
             continue
-        area = "—" if r["area_ratio"] is None else f"{r['area_ratio']:.2f} ({r['area_ratio_worst']:.2f})"
+        area = "—" if r["area_ratio"] is None else f"{r['area_ratio']:.2f}"
+        if r["area_ratio_worst"] is not None:
+            area += f" ({r['area_ratio_worst']:.2f})"
         cells = [f"{r['mean_mm']:.1f} / {r['p95_mm']:.1f}", _mean_max(r.get("to_twin", [])),
                  _mean_max(r.get("to_full_rate", [])), area, f"{r['lost_frames']}/{r['frames']}",
                  f"{r['wrong_confident_frames']}/{r['frames']}", f"{r['median_ms']:.1f}"]

@@ -15,7 +15,9 @@ scene (``sim.scenes.HANDLED_SCENES``). Per frame it keeps:
 
 "Wrong" means a frame's mean vertex error exceeds ``WRONG_MM`` (30 mm); a wrong frame whose
 confidence is at least ``CONFIDENT`` (0.5) is a confident wrong estimate, the defect a robot
-cannot guard against.
+cannot guard against. The occluded area ratio of a run is area-weighted over its frames; its
+worst frame is taken among frames whose hidden faces make up at least ``WORST_AREA_MIN``
+(2 %) of the mesh's canonical area, as one or two hidden faces say little.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from tqdm import tqdm
 
 from perception.tracker import MeshTracker, TrackerConfig
 from sim.evaluation import SceneRecording
-from sim.ground_truth import hidden_behind_occluder, material_point_tracks, occluded_area_ratio
+from sim.ground_truth import face_areas, hidden_behind_occluder, material_point_tracks, occluded_area_ratio
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +38,9 @@ log = logging.getLogger(__name__)
 WRONG_MM = 30.0
 #: A wrong frame with at least this confidence is a confident wrong estimate.
 CONFIDENT = 0.5
+#: Frames whose hidden faces hold at least this fraction of the canonical mesh's area count
+#: towards the worst occluded area ratio.
+WORST_AREA_MIN = 0.02
 
 
 @dataclass
@@ -46,6 +51,7 @@ class HandledScore:
     hidden : list of T (N_t,) bool, vertices truly hidden behind the occluder
     area_ratio : (T,) float64, occluded area ratio (nan where no face is hidden)
     hidden_area_m2 : (T,) float64, canonical area of the hidden faces
+    mesh_area_m2 : (T,) float64, canonical area of the whole mesh
     confidence : (T,) float64; lost : (T,) bool; timing_ms : (T,) float64
     shown_hidden : (T,) int, truly hidden vertices the tracker reported visible (-1 when it
         reports no visibility)
@@ -56,6 +62,7 @@ class HandledScore:
     hidden: list
     area_ratio: np.ndarray
     hidden_area_m2: np.ndarray
+    mesh_area_m2: np.ndarray
     confidence: np.ndarray
     lost: np.ndarray
     timing_ms: np.ndarray
@@ -84,7 +91,9 @@ class HandledScore:
         errors = np.concatenate([self.errors_mm[i] for i in idx])
         hidden_err = np.concatenate([self.errors_mm[i][self.hidden[i]] for i in idx])
         area = self.hidden_area_m2[idx]
+        ratio = self.area_ratio[idx]
         weighted = area > 0
+        large = weighted & (area >= WORST_AREA_MIN * self.mesh_area_m2[idx])
         wrong = self.wrong()[idx]
         confident = self.confidence[idx] >= CONFIDENT
         known_visibility = self.shown_hidden[idx] >= 0
@@ -96,10 +105,10 @@ class HandledScore:
             "hidden_mean_mm": float(hidden_err.mean()) if hidden_err.size else None,
             "frames_with_hidden_vertices": int((n_hidden > 0).sum()),
             # area-weighted over frames: the hidden part's total estimated area over its total rest area
-            "occluded_area_ratio": float(np.sum(self.area_ratio[idx][weighted] * area[weighted]) / area[weighted].sum())
+            "occluded_area_ratio": float(np.sum(ratio[weighted] * area[weighted]) / area[weighted].sum())
             if weighted.any() else None,
-            "occluded_area_ratio_worst": float(self.area_ratio[idx][weighted][
-                np.argmax(np.abs(self.area_ratio[idx][weighted] - 1.0))]) if weighted.any() else None,
+            "occluded_area_ratio_worst": float(ratio[large][np.argmax(np.abs(ratio[large] - 1.0))])
+            if large.any() else None,
             "lost_frames": int(self.lost[idx].sum()),
             "wrong_frames": int(wrong.sum()),
             "wrong_confident_frames": int((wrong & confident).sum()),
@@ -144,7 +153,7 @@ def score_run(rec: SceneRecording, estimates: list, failure: str = "") -> Handle
     """Score MeshEstimates of ``rec``'s first ``len(estimates)`` frames against its ground truth."""
     T = len(estimates)
     errors, hidden = [], []
-    area_ratio, hidden_area = np.full(T, np.nan), np.zeros(T)
+    area_ratio, hidden_area, mesh_area = np.full(T, np.nan), np.zeros(T), np.zeros(T)
     shown_hidden = np.full(T, -1, np.int64)
     K = rec.frames[0].camera.K if rec.frames else None
     start = 0
@@ -163,11 +172,12 @@ def score_run(rec: SceneRecording, estimates: list, failure: str = "") -> Handle
                 h = np.zeros(n, bool)
             hidden.append(h)
             area_ratio[t], hidden_area[t] = occluded_area_ratio(est.vertices, est.canonical, est.faces, h)
+            mesh_area[t] = face_areas(est.canonical, est.faces).sum()
             if est.visible is not None:
                 shown_hidden[t] = int((est.visible & h).sum())
         start = stop
     return HandledScore(
-        errors_mm=errors, hidden=hidden, area_ratio=area_ratio, hidden_area_m2=hidden_area,
+        errors_mm=errors, hidden=hidden, area_ratio=area_ratio, hidden_area_m2=hidden_area, mesh_area_m2=mesh_area,
         confidence=np.array([e.confidence for e in estimates], dtype=np.float64),
         lost=np.array([e.lost for e in estimates], dtype=bool),
         timing_ms=np.array([e.timing_ms for e in estimates], dtype=np.float64),

@@ -67,6 +67,9 @@ def test_a_squeezed_hidden_part_shows_in_the_area_ratio():
         estimates.append(_estimate(v, mesh))
     score = score_run(rec, estimates)
     assert score.area_ratio[1] == pytest.approx(0.5) and score.area_ratio[2] == pytest.approx(1.0)
+    summary = score.summary()
+    assert summary["occluded_area_ratio_worst"] == pytest.approx(0.5)
+    assert 0.6 < summary["occluded_area_ratio"] < 0.9, "weighted by the hidden area of frames 1 and 2"
 
 
 def test_confident_wrong_frames_and_lost_flags_are_counted():
