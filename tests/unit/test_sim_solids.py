@@ -90,6 +90,9 @@ def test_nothing_in_view_draws_nothing():
     assert not rasterise_solid(behind, CAMERA, SHADING).mask.any()
     aside = sphere((5.0, 0.0, 1.0), 0.1, (1, 2, 3))
     assert not rasterise_solid(aside, CAMERA, SHADING).mask.any()
+    # a speck between four pixel centres (u = v = 10.5): faces in view, but no pixel centre covered
+    speck = sphere(((10.5 - 79.5) / 150, (10.5 - 59.5) / 150, 1.0), 1e-4, (1, 2, 3))
+    assert not rasterise_solid(speck, CAMERA, SHADING).mask.any()
 
 
 def test_elbow_keeps_the_link_lengths_and_bends_up():
