@@ -5,6 +5,7 @@ import pytest
 
 from sim.camera_model import transform_points
 from sim.cloth_mesh import edge_strain
+from sim.raster import Shading
 from sim.scenes import (
     HANDLED_FRAMES,
     HANDLED_SCENES,
@@ -16,6 +17,7 @@ from sim.scenes import (
     occluder_sweep_spec,
     table_lift_spec,
 )
+from sim.solids import rasterise_solid
 
 W, H = 160, 120
 SPECS = {"occluder_sweep": occluder_sweep_spec, "gripper_corner_move": gripper_corner_move_spec,
@@ -72,6 +74,19 @@ def test_sweeping_occluders_are_arm_sized_and_cross_the_cloth_in_front_of_it():
             sides.append(-1 if x.max() < x_cloth.min() else 1 if x.min() > x_cloth.max() else 0)
         assert sorted(sides) == [-1, 1], f"seed {seed}: the occluder is seen over the cloth at its start or end"
     assert 0.35 - 1e-6 <= min(speeds) and max(speeds) <= 1.0 + 1e-6
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", HANDLED_SCENES)
+def test_every_frame_of_the_script_draws_its_occluder(name):
+    camera = kinect_camera(320, 240)
+    shading = Shading(light_dir_cam=np.array([0.0, 0.0, -1.0]))
+    for seed in range(2):
+        spec = SPECS[name](np.random.default_rng(seed), camera)
+        T_cam_world = np.linalg.inv(spec.T_world_cam)
+        seen = [rasterise_solid(spec.occluders(k / 30).transformed(T_cam_world), camera, shading).mask.sum()
+                for k in range(spec.n_frames)]
+        assert np.mean(np.array(seen) > 0) > 0.5, f"seed {seed}: the occluder is in view in most frames"
 
 
 @pytest.mark.slow
