@@ -74,6 +74,7 @@ def error_with_occlusion(path: Path, title: str, runs: dict[str, dict], hidden_s
     ax_conf.axhline(confident, color="k", linestyle="--", lw=0.8)
     ax_err.set_ylabel("mean vertex error (mm)")
     ax_err.set_yscale("symlog", linthresh=10.0)
+    ax_err.set_ylim(bottom=0.0)
     ax_conf.set_ylabel("confidence")
     ax_conf.set_ylim(-0.02, 1.02)
     ax_conf.set_xlabel(f"time (s); shaded: cloth hidden by the occluder (up to {100 * peak:.0f} %); x: flagged lost")
