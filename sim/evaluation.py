@@ -39,9 +39,9 @@ class SceneRecording:
     gt_vertices : (T, V, 3) float64 camera frame; gt_faces : (F, 3) int
     masks : list of (H, W) bool true cloth masks (noise-free)
     occluder_masks : list of (H, W) bool, where a drawn occluder is seen (exact); empty when
-        the scene has no occluders
+        the scene has no occluders or they were not drawn (a twin)
     occluder_depths : list of (H, W) float32 metres, the occluder's exact depth where it is
-        seen, 0 elsewhere; empty when the scene has no occluders
+        seen, 0 elsewhere; empty as ``occluder_masks``
     frame_step : 1, or k when only every k-th simulated frame was kept (timestamps stay true)
     """
 
@@ -124,7 +124,7 @@ def record_scene(name: str, seed: int = 0, noise: bool = True, n_frames: int | N
             frames.append(frame)
             gts.append(scene.cloth_vertices_cam())
             masks.append(scene.cloth_mask())
-            if scene.has_occluders:
+            if scene.has_occluders and occluders:  # a twin draws none: nothing to keep
                 seen = scene.occluder_mask()
                 occluder_masks.append(seen)
                 occluder_depths.append(np.where(seen, scene.exact_depth_m(), np.float32(0.0)))
