@@ -5,8 +5,8 @@ scene (``sim.scenes.HANDLED_SCENES``). Per frame it keeps:
 
 - the material-point error of every vertex (``sim.ground_truth``): each estimated vertex is
   bound to the true surface in the run's first frame and followed as a material point (if
-  the tracker rebuilds its mesh mid-run, with a new vertex count, its vertices are bound
-  again in that frame);
+  the tracker rebuilds its mesh mid-run, a new canonical mesh, its vertices are bound again
+  in that frame);
 - which estimated vertices are truly hidden behind the occluder: their material point
   projects onto the occluder's exact mask and lies behind it;
 - the occluded area ratio: the area of the estimated faces whose three vertices are truly
@@ -157,10 +157,11 @@ def score_run(rec: SceneRecording, estimates: list, failure: str = "") -> Handle
     shown_hidden = np.full(T, -1, np.int64)
     K = rec.frames[0].camera.K if rec.frames else None
     start = 0
-    while start < T:  # runs of one mesh: a re-built mesh is bound to the truth again
-        n = len(estimates[start].vertices)
+    while start < T:  # runs of one canonical mesh: a rebuilt mesh is bound to the truth again
+        canonical = estimates[start].canonical
+        n = len(canonical)
         stop = start + 1
-        while stop < T and len(estimates[stop].vertices) == n:
+        while stop < T and np.array_equal(estimates[stop].canonical, canonical):
             stop += 1
         targets = material_point_tracks(estimates[start].vertices, rec.gt_vertices[start:stop], rec.gt_faces)
         for t in range(start, stop):
