@@ -105,7 +105,7 @@ def main(argv: list[str] | None = None) -> int:
             for i, frame in enumerate(tqdm(scene.frames(total), total=total, desc=args.scene, unit="frame",
                                            disable=args.quiet)):
                 if i % args.frame_step:
-                    continue
+                    continue  # rendered all the same: the kept frames equal those of a full-rate recording
                 writer.write(frame)
                 vertices.append(scene.cloth_vertices_cam().astype(np.float32))
                 if scene.has_occluders:
