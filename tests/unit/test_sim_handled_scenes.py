@@ -128,8 +128,9 @@ def test_the_occluder_is_drawn_in_front_of_the_cloth_and_its_mask_is_exact():
         assert gap.min() > 0.1, "20-40 cm in front of the cloth (along the optical axis)"
         # and where its mesh projects, at its depth
         points = scene.virtual_camera.world_to_camera(scene.occluder_mesh_world().points)
-        u = W / 640 * 525 * points[:, 0] / points[:, 2] + (W - 1) / 2
-        v = W / 640 * 525 * points[:, 1] / points[:, 2] + (H - 1) / 2
+        K = scene.camera.K
+        u = K[0, 0] * points[:, 0] / points[:, 2] + K[0, 2]
+        v = K[1, 1] * points[:, 1] / points[:, 2] + K[1, 2]
         rows, cols = np.nonzero(mask)
         assert cols.min() >= np.floor(u.min()) and cols.max() <= np.ceil(u.max())
         assert rows.min() >= max(np.floor(v.min()), 0) and rows.max() <= min(np.ceil(v.max()), H - 1)
