@@ -1,6 +1,7 @@
 """Publish RGB-D frames from one source on a ZeroMQ endpoint (docs/protocol.md, FRAMES).
 
     python -m launch_scripts.publish_frames sim --scene poster_bend [--seed S] [--no-noise] [--frames N]
+                                            [--known-occluders] [--no-occluders]
     python -m launch_scripts.publish_frames sequence SEQ
     python -m launch_scripts.publish_frames realsense [--width W --height H --fps F] [--serial SN | --recording FILE.db3]
     python -m launch_scripts.publish_frames kinect [--colour-resolution 720p] [--depth-mode nfov_unbinned]
@@ -73,7 +74,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-noise", action="store_true", help="render without sensor noise")
     p.add_argument("--width", type=positive_int, default=640)
     p.add_argument("--height", type=positive_int, default=480)
-    p.add_argument("--frames", type=positive_int, default=60, help="frames per pass (default 60, the scenes' script)")
+    p.add_argument("--frames", type=positive_int, help="frames per pass (default: the scene's script, 60 for the "
+                                                         "paper's scenes)")
+    p.add_argument("--known-occluders", action="store_true",
+                   help="send the exact mask of the drawn occluders (a gripper, an arm) in each frame's occluder_mask")
+    p.add_argument("--no-occluders", action="store_true",
+                   help="the scene's twin: its occluders are not drawn (same cloth motion)")
 
     p = sub.add_parser("sequence", parents=[common], help="a recorded sequence folder")
     p.add_argument("path", help="sequence folder (rgb.txt, depth.txt, camera_intrinsic.json)")
@@ -103,8 +109,12 @@ def build_parser() -> argparse.ArgumentParser:
 def open_source(args):
     """The FrameSource the arguments ask for."""
     if args.source == "sim":
-        return SimSource(args.scene, seed=args.seed, noise=not args.no_noise, width=args.width, height=args.height,
-                         n_frames=args.frames)
+        source = SimSource(args.scene, seed=args.seed, noise=not args.no_noise, width=args.width,
+                           height=args.height, n_frames=args.frames, occluders=not args.no_occluders,
+                           known_occluders=args.known_occluders)
+        if args.frames is None:
+            source.n_frames = source.script_frames
+        return source
     if args.source == "sequence":
         return SequenceSource(args.path)
     if args.source == "realsense":

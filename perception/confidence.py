@@ -10,7 +10,9 @@ that is right scores about 1 on it:
   (within ``tol_m``); a vertex the camera sees through, or one more than ``tol_m`` behind
   the measured surface, disagrees;
 - ``coverage``: the fraction of the segmented object that the projected mesh covers (a
-  mesh squeezed or slid off part of the object leaves it uncovered);
+  mesh squeezed or slid off part of the object leaves it uncovered); where the
+  segmentation could not find the object's edge (a cloth on a table of its own colour is
+  continuous with the table), it says nothing and counts 1;
 - ``precision``: the fraction of the vertices seen that project onto the object;
 - ``appearance``: how alike the mesh's material points look now and when the mesh was
   made: their texture (normalised correlation), or on a plain cloth their colour (a mesh
@@ -67,7 +69,8 @@ def _ramp(value: float, good: float) -> float:
 
 
 def assess(vertices: np.ndarray, faces: np.ndarray, edges: np.ndarray, rest_length_m: float, visible: np.ndarray,
-           depth_m: np.ndarray, object_mask: np.ndarray, K: np.ndarray, tol_m: float, appearance: float) -> Assessment:
+           depth_m: np.ndarray, object_mask: np.ndarray, K: np.ndarray, tol_m: float, appearance: float,
+           leak: float = 0.0) -> Assessment:
     """The Assessment of an estimate.
 
     vertices : (N, 3); faces : (M, 3) int; visible : (N,) bool, the vertices seen
@@ -77,6 +80,8 @@ def assess(vertices: np.ndarray, faces: np.ndarray, edges: np.ndarray, rest_leng
     tol_m : depth agreement tolerance, metres
     appearance : in [0, 1], how alike the material points look now and at the start
         (``perception.appearance.AppearanceModel.likeness``)
+    leak : the segmentation's (``perception.segmentation.Segment.leak``); above 0.3 the object
+        mask's extent is not the object's, and coverage is not measured
     """
     n = len(vertices)
     h, w = depth_m.shape
@@ -92,6 +97,8 @@ def assess(vertices: np.ndarray, faces: np.ndarray, edges: np.ndarray, rest_leng
     half = object_mask[::2, ::2]
     area = half.sum()
     coverage = (faces_mask((uv + 0.5) / 2.0 - 0.5, faces, half.shape) & half).sum() / area if area else 0.0
+    if leak > 0.3:
+        coverage = 1.0
     stretch = float(np.median(np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1))) / rest_length_m
     return Assessment(depth=_ramp(depth, 0.85), coverage=_ramp(coverage, 0.8), precision=_ramp(precision, 0.85),
                       appearance=float(appearance), unstretched=float(np.clip((1.6 - stretch) / 0.4, 0.0, 1.0)),

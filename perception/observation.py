@@ -85,10 +85,11 @@ def grey_of(frame: RGBDFrame) -> np.ndarray:
 
 
 def observe(frame: RGBDFrame, mask: np.ndarray, window_px: int = 5, occlusion_margin_m: float = 0.03,
-            grey: np.ndarray | None = None) -> Observation:
+            grey: np.ndarray | None = None, unsearched: np.ndarray | None = None) -> Observation:
     """Build the Observation of ``frame`` for the object ``mask`` (H, W) bool
     (``grey``: the frame's grey image when the caller already made it). The outline
-    leaves out the stretches next to the frame's known occluders (``frame.occluder_mask``)."""
+    leaves out the stretches next to the frame's known occluders (``frame.occluder_mask``)
+    and next to ``unsearched`` (H, W) bool pixels, where the segmentation stopped looking."""
     K = frame.camera.K
     grey = grey_of(frame) if grey is None else grey
     depth = smooth_depth_in_mask(frame.depth_m, mask, window_px)
@@ -98,6 +99,9 @@ def observe(frame: RGBDFrame, mask: np.ndarray, window_px: int = 5, occlusion_ma
     if box is not None:
         y0, y1, x0, x1 = box
         occluder = None if frame.occluder_mask is None else frame.occluder_mask[y0:y1, x0:x1]
+        if unsearched is not None:
+            cut = unsearched[y0:y1, x0:x1]
+            occluder = cut if occluder is None else occluder | cut
         oy, ox = np.nonzero(outline(mask[y0:y1, x0:x1], frame.depth_m[y0:y1, x0:x1], occlusion_margin_m, occluder))
         oy, ox = oy + y0, ox + x0
     else:

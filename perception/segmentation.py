@@ -19,9 +19,27 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from perception.colour_model import ColourModel
 from perception.raster import bounding_box
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Segment:
+    """The object found around a prediction.
+
+    mask : (H, W) bool, the object
+    unsearched : (H, W) bool, the pixels beyond the search margin: the mask stops there
+        because the search did, so its outline there is not the object's edge
+    leak : in [0, 1], the fraction of the mask's own outline that runs along the unsearched
+        pixels (near 0 when the object lies within the search; high when it is continuous
+        with a surface that goes on, such as a table the cloth lies on)
+    """
+
+    mask: np.ndarray
+    unsearched: np.ndarray
+    leak: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -80,7 +98,8 @@ def _grow(region: np.ndarray, candidate: np.ndarray) -> np.ndarray:
 
 
 def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tuple[float, float],
-                    cfg: SegmentationConfig = SegmentationConfig(), hidden_mask: np.ndarray | None = None) -> np.ndarray:
+                    cfg: SegmentationConfig = SegmentationConfig(), hidden_mask: np.ndarray | None = None,
+                    rgb: np.ndarray | None = None, colour: ColourModel | None = None) -> Segment:
     """Object mask in a frame, given where the object is predicted to be.
 
     depth_m : (H, W) float32 metres, 0/NaN missing
@@ -90,25 +109,38 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
         or None. A region in the search margin next to them joins even without overlapping
         the prediction: a hidden part comes out from behind its occluder a little away from
         where the motion prior carried it.
-    returns (H, W) bool; empty when nothing of the object is seen
+    rgb : (H, W, 3) uint8 and colour : the object's ColourModel, or None. Where colour tells
+        the object from its surroundings, pixels that look like the surroundings are left out
+        (a cloth on a table is continuous in depth with the table): outside the prediction
+        unless they are more likely the object than not, inside it only in areas wider than
+        a print's patches where they are clearly not.
+    returns Segment; its mask is empty when nothing of the object is seen
     """
     out = np.zeros(predicted_mask.shape, bool)
+    unsearched = np.ones(predicted_mask.shape, bool)
     # Work in the prediction's bounding box grown by the search margin: the rest of the
     # image cannot hold the object.
     box = bounding_box(predicted_mask, pad=cfg.search_margin_px + 1)
     if box is None:
-        return out
+        return Segment(out, unsearched)
     y0, y1, x0, x1 = box
     pred = predicted_mask[y0:y1, x0:x1]
     depth = depth_m[y0:y1, x0:x1]
     valid = valid_depth(depth)
     dist = cv2.distanceTransform((~pred).astype(np.uint8), cv2.DIST_L2, 3)
     search = dist <= cfg.search_margin_px
+    unsearched[y0:y1, x0:x1] = ~search
     d = np.where(valid, depth, 0.0)
     candidate = valid & search & (d > z_range[0] - cfg.depth_band_m) & (d < z_range[1] + cfg.depth_band_m)
+    if colour is not None and rgb is not None and colour.informative:
+        p = colour.probability(rgb[y0:y1, x0:x1])
+        # Inside the prediction only wide areas of the surroundings' colour go (where the
+        # cloth was before it moved), not a print's patches of a similar colour.
+        unlike = cv2.morphologyEx((pred & (p < 0.15)).astype(np.uint8), cv2.MORPH_OPEN, np.ones((15, 15), np.uint8))
+        candidate &= (p >= 0.5) | (pred & ~unlike.astype(bool))
     n, labels, stats = _regions(candidate, depth, cfg)
     if n <= 1:
-        return out
+        return Segment(out, unsearched)
     overlap = np.bincount(labels[pred], minlength=n)
     area = stats[:, cv2.CC_STAT_AREA]
     # A region belongs to the object when a real part of it lies where the mesh was predicted.
@@ -118,8 +150,34 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
                                  cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * cfg.search_margin_px + 1,) * 2)) > 0
         keep |= (np.bincount(labels[near_hidden], minlength=n) >= cfg.min_region_px // 3) & (area >= cfg.min_region_px)
     keep[0] = False
-    out[y0:y1, x0:x1] = _grow(keep[labels], candidate)
-    return out
+    region = _grow(keep[labels], candidate)
+    out[y0:y1, x0:x1] = region
+    edge = outline(region, depth)
+    along = edge & (cv2.dilate((~search).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+    return Segment(out, unsearched, float(along.sum() / max(1, edge.sum())))
+
+
+def find_by_colour(depth_m: np.ndarray, rgb: np.ndarray, colour: ColourModel,
+                   cfg: SegmentationConfig = SegmentationConfig()) -> np.ndarray:
+    """The object anywhere in a frame by its colour: (H, W) bool, empty if none.
+
+    Of the depth-continuous regions of pixels more likely the object than its surroundings
+    (``colour.probability`` >= 0.5), the one holding the most object probability."""
+    h, w = depth_m.shape
+    if not colour.informative:
+        return np.zeros((h, w), bool)
+    p = colour.probability(rgb)
+    candidate = valid_depth(depth_m) & (p >= 0.5)
+    n, labels, stats = _regions(candidate, depth_m, cfg)
+    if n <= 1:
+        return np.zeros((h, w), bool)
+    mass = np.bincount(labels.ravel(), weights=p.ravel(), minlength=n)
+    mass[0] = 0.0
+    mass[stats[:, cv2.CC_STAT_AREA] < cfg.min_region_px] = 0.0
+    best = int(np.argmax(mass))
+    if mass[best] == 0.0:
+        return np.zeros((h, w), bool)
+    return _grow(labels == best, candidate)
 
 
 def _fit_plane_ransac(points: np.ndarray, tol: float, rng: np.random.Generator, iters: int = 200):

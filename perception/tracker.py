@@ -35,11 +35,12 @@ from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, Motio
 from perception.features import make_correspondences, resolve_kind
 from perception.initial_mesh import InitialisationError, mesh_from_mask, place_mesh, spacing_for
 from perception.appearance import AppearanceModel
+from perception.colour_model import ColourModel
 from perception.coarse import MIN_RESPONSE, FrameMemory
 from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
 from perception.raster import faces_mask
-from perception.segmentation import SegmentationConfig, find_object, segment_tracked
+from perception.segmentation import SegmentationConfig, find_by_colour, find_object, segment_tracked
 from perception.solver import SemiImplicitSolver
 from perception.registration import GlobalRegistration
 from perception.visibility import NO_DEPTH, OCCLUDED, VISIBLE, classify_vertices, face_states
@@ -225,6 +226,7 @@ class MeshTracker:
         self.last_motion_scores: dict = {}
         self._appearance: AppearanceModel | None = None
         self._registration: GlobalRegistration | None = None
+        self._colour: ColourModel | None = None
         self._good_V = None  # (N, 3) the last estimate that was not lost
         self.lost_streak = 0  # consecutive lost frames
         self.reacquisitions = 0  # times the object was found again after being lost
@@ -337,6 +339,7 @@ class MeshTracker:
         self._memory.push(self._memory.small(obs.grey))
         visible = classify_vertices(V, frame.depth_m, frame.camera.K, cfg.occlusion_margin_m, frame.occluder_mask) == VISIBLE
         self._appearance = AppearanceModel(frame.rgb, V, mesh.faces, frame.camera.K, visible, mesh.spacing_m)
+        self._colour = ColourModel(frame.rgb, obs.mask)
         self._registration = GlobalRegistration(resolve_kind("auto"), rng=self._rng)
         self._registration.build(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
         self._good_V = V
@@ -458,7 +461,9 @@ class MeshTracker:
         if found is not None:
             V0 = found.apply(self._good_V)
         else:
-            mask = find_object(frame.depth_m, K, cfg.segmentation, self._rng)
+            mask = find_by_colour(frame.depth_m, frame.rgb, self._colour, cfg.segmentation)
+            if not mask.any():
+                mask = find_object(frame.depth_m, K, cfg.segmentation, self._rng)
             if occluder is not None:
                 mask &= ~occluder
             if not mask.any():
@@ -469,13 +474,14 @@ class MeshTracker:
                 return None
         h, w = frame.depth_m.shape
         z = V0[:, 2]
-        mask = segment_tracked(frame.depth_m, faces_mask(project(V0, K), faces, (h, w)), (float(z.min()), float(z.max())),
-                               cfg.segmentation)
+        segment = segment_tracked(frame.depth_m, faces_mask(project(V0, K), faces, (h, w)),
+                                  (float(z.min()), float(z.max())), cfg.segmentation, rgb=frame.rgb, colour=self._colour)
+        mask = segment.mask
         if occluder is not None:
             mask &= ~occluder
         if not mask.any():
             return None
-        obs = observe(frame, mask, cfg.depth_window_px, grey=grey)
+        obs = observe(frame, mask, cfg.depth_window_px, grey=grey, unsearched=segment.unsearched)
         corr = None
         if found is not None:
             pts, has = obs.points_at(found.xy)
@@ -486,7 +492,7 @@ class MeshTracker:
         res = self._solver.minimise(V0, self._data_terms(obs, corr, observed, V0), 2 * cfg.init_iterations, cfg.tolerance_m)
         V = res.vertices
         visible = classify_vertices(V, frame.depth_m, K, cfg.occlusion_margin_m, occluder) == VISIBLE
-        assessment = self._assess(V, frame, visible, mask)
+        assessment = self._assess(V, frame, visible, mask, segment.leak)
         if assessment.lost(cfg.lost_confidence):
             log.debug("frame %d: re-acquisition rejected (%s)", frame.seq, assessment.as_dict())
             return None
@@ -576,7 +582,9 @@ class MeshTracker:
         state = classify_vertices(V_pred, frame.depth_m, K, cfg.occlusion_margin_m, occluder)
         behind = np.any(state[faces] == OCCLUDED, axis=1)
         hidden_mask = faces_mask(project(V_pred, K), faces[behind], pred_mask.shape) if behind.any() else None
-        mask = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation, hidden_mask)
+        segment = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation,
+                                  hidden_mask, frame.rgb, self._colour)
+        mask = segment.mask
         if occluder is not None:
             mask &= ~occluder
         if not mask.any():
@@ -588,7 +596,7 @@ class MeshTracker:
         # Hidden and out-of-view vertices have no data; one without depth may have slid off
         # the object (the boundary term brings it back) or sit on a hole in the depth.
         observed = (state == VISIBLE) | (state == NO_DEPTH)
-        obs = observe(frame, mask, cfg.depth_window_px, grey=grey)
+        obs = observe(frame, mask, cfg.depth_window_px, grey=grey, unsearched=segment.unsearched)
         corr = None
         if prepared is not None:
             fid, bary, xy = self._corr.match(obs.grey, self._feature_mask(mask), V_pred, faces, K, prepared.result(),
@@ -617,18 +625,20 @@ class MeshTracker:
         if corr is not None:
             energies["inliers"] = float(corr.weights.sum())
         visible = classify_vertices(V, frame.depth_m, K, cfg.occlusion_margin_m, occluder) == VISIBLE
-        assessment = self._assess(V, frame, visible, mask)
+        assessment = self._assess(V, frame, visible, mask, segment.leak)
         return self._estimate(frame, V, energies, iterations, assessment, t0, visible)
 
     # -- outputs -------------------------------------------------------------------------
 
-    def _assess(self, V: np.ndarray, frame: RGBDFrame, visible: np.ndarray, object_mask: np.ndarray) -> Assessment:
-        """The evidence for estimate ``V`` (N, 3) in ``frame`` (``perception.confidence``)."""
+    def _assess(self, V: np.ndarray, frame: RGBDFrame, visible: np.ndarray, object_mask: np.ndarray,
+                leak: float = 0.0) -> Assessment:
+        """The evidence for estimate ``V`` (N, 3) in ``frame`` (``perception.confidence``);
+        ``leak`` is the segmentation's (``perception.segmentation.Segment``)."""
         K = frame.camera.K
         likeness = self._appearance.likeness(frame.rgb, V, self.mesh.faces, K, visible) \
             if self._appearance is not None else 1.0
         assessment = assess(V, self.mesh.faces, self._edges, self.mesh.spacing_m, visible, frame.depth_m, object_mask,
-                            K, self.config.confidence_tol_m, likeness)
+                            K, self.config.confidence_tol_m, likeness, leak)
         self.last_assessment = assessment
         return assessment
 

@@ -56,10 +56,11 @@ FACE_VISIBLE, FACE_HIDDEN, FACE_OUT_OF_VIEW = 0, 1, 2
 
 def face_states(state: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(M,) int8 for faces (M, 3) given vertex states (N,) from ``classify_vertices``:
-    FACE_VISIBLE when all three vertices are visible, FACE_OUT_OF_VIEW when one is out of
-    view, else FACE_HIDDEN (partly or wholly hidden, or without depth)."""
+    FACE_OUT_OF_VIEW when a vertex is out of view, else FACE_HIDDEN when a vertex is hidden
+    behind something nearer, else FACE_VISIBLE (a vertex without depth is still seen in
+    the colour image)."""
     s = state[faces]
-    out = np.full(len(faces), FACE_HIDDEN, np.int8)
-    out[np.all(s == VISIBLE, axis=1)] = FACE_VISIBLE
+    out = np.full(len(faces), FACE_VISIBLE, np.int8)
+    out[np.any(s == OCCLUDED, axis=1)] = FACE_HIDDEN
     out[np.any(s == OUT_OF_VIEW, axis=1)] = FACE_OUT_OF_VIEW
     return out

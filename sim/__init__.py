@@ -1,10 +1,14 @@
 """PyBullet cloth simulation, virtual RGB-D camera and ground truth.
 
-- ``sim.scenes``: the paper's scenes (``SCENES``, ``make_scene``), each a ``ClothScene``
-  that steps, renders ``ipc.RGBDFrame`` and gives the true cloth in the camera frame.
+- ``sim.scenes``: the paper's scenes and scenes of a cloth being handled (``SCENES``,
+  ``make_scene``), each a ``ClothScene`` that steps, renders ``ipc.RGBDFrame`` and gives the
+  true cloth in the camera frame.
 - ``sim.physics``: the PyBullet wrapper (``ClothPhysics``, ``Gripper``, ``ClothMaterial``).
-- ``sim.camera``: ``VirtualCamera`` (PyBullet for the rigid scene, ``sim.raster`` for the cloth).
-- ``sim.noise``: depth/colour sensor noise; ``sim.ground_truth``: the accuracy metric.
+- ``sim.camera``: ``VirtualCamera`` (PyBullet for the rigid scene, ``sim.raster`` for the cloth
+  and for moving rigid bodies, ``sim.solids``: boxes, cylinders, spheres).
+- ``sim.robot_drawing``: ``GripperLook``, a parallel gripper with its wrist and arm to draw.
+- ``sim.noise``: depth/colour sensor noise; ``sim.ground_truth``: the accuracy metric, and
+  what an occluder hides; ``sim.handled_evaluation``: scores of tracking while handled.
 - ``sim.cloth_mesh``, ``sim.textures``: cloth meshes and textures generated in code.
 - ``python -m sim.record``: write a scene as a sequence folder (``perception.sequence``).
 

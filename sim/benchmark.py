@@ -2,8 +2,12 @@
 
     python -m sim.benchmark [--scene poster_bend] [--frames 60] [--renders 30]
 
-Prints one line per figure, with the machine's core count (DESIGN.md "Measuring":
-medians, never timed assertions in tests).
+It also times a moving occluder (``occluder_sweep``) drawn as the scenes draw it, with
+``sim.raster``, against the same occluder mesh as a PyBullet visual body, which makes the
+TinyRenderer redraw the whole room in every frame, in the same run.
+
+Prints one line per figure, with the machine's core count (medians; speed is measured
+here, never asserted in tests).
 """
 
 from __future__ import annotations
@@ -19,7 +23,7 @@ import numpy as np
 from perception.sequence import SequenceWriter
 from sim.cloth_mesh import edge_strain, rectangle_mesh, tshirt_mesh
 from sim.physics import ClothMaterial, ClothPhysics
-from sim.scenes import SCENES, make_scene
+from sim.scenes import PAPER_SCENES, make_scene
 
 
 def hanging_strain(kind: str, seconds: float = 1.0) -> np.ndarray:
@@ -48,9 +52,55 @@ def _median_ms(fn, n: int) -> float:
     return 1000.0 * float(np.median(times))
 
 
+def moving_occluder_render_ms(renders: int, seed: int = 0) -> tuple[float, float, float]:
+    """Median exact render time (ms) of ``occluder_sweep`` frames while its occluder sweeps:
+    (drawn with sim.raster, the same frame without it, the same mesh as a PyBullet body moved
+    each frame). Only rendering is timed, not physics; at most one render per frame of the script."""
+    with make_scene("occluder_sweep", seed=seed, noise=False) as drawn, \
+            make_scene("occluder_sweep", seed=seed, noise=False, occluders=False) as pybullet_drawn:
+        spec = drawn.spec
+        first = spec.occluders(0.0)
+        p = pybullet_drawn.physics.pybullet
+        client = pybullet_drawn.physics.client
+        shape = p.createVisualShape(p.GEOM_MESH, vertices=first.points.tolist(), indices=first.faces.ravel().tolist(),
+                                    rgbaColor=[*(first.colours[0] / 255.0), 1.0], physicsClientId=client)
+        body = p.createMultiBody(0.0, -1, shape, [0.0, 0.0, 0.0], physicsClientId=client)
+        times = {"raster": [], "none": [], "pybullet": []}
+        for _ in range(min(renders, drawn.n_frames)):
+            drawn.step()
+            pybullet_drawn.step()
+            shift = spec.occluders(drawn.time_s).points[0] - first.points[0]
+            p.resetBasePositionAndOrientation(body, shift.tolist(), [0.0, 0.0, 0.0, 1.0], physicsClientId=client)
+            for key, render in (("raster", drawn.render), ("pybullet", pybullet_drawn.render)):
+                start = time.perf_counter()
+                render()
+                times[key].append(time.perf_counter() - start)
+            drawn.draw_occluders = False
+            start = time.perf_counter()
+            drawn.render()
+            times["none"].append(time.perf_counter() - start)
+            drawn.draw_occluders = True
+    return tuple(1000.0 * float(np.median(times[key])) for key in ("raster", "none", "pybullet"))
+
+
+def handled_render_ms(name: str, renders: int, seed: int = 0) -> tuple[float, float]:
+    """Median exact render time (ms) of a handled scene's frames, (with its occluders drawn, the
+    same frame without them), over at most one render per frame of its script."""
+    times = {True: [], False: []}
+    with make_scene(name, seed=seed, noise=False) as scene:
+        for _ in range(min(renders, scene.n_frames)):
+            scene.step()
+            for drawn in (True, False):
+                scene.draw_occluders = drawn
+                start = time.perf_counter()
+                scene.render()
+                times[drawn].append(time.perf_counter() - start)
+    return 1000.0 * float(np.median(times[True])), 1000.0 * float(np.median(times[False]))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m sim.benchmark", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scene", choices=sorted(SCENES), default="poster_bend")
+    parser.add_argument("--scene", choices=PAPER_SCENES, default="poster_bend")
     parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--renders", type=int, default=30)
     args = parser.parse_args(argv)
@@ -75,6 +125,15 @@ def main(argv: list[str] | None = None) -> int:
     out.write(f"render {args.scene} 640x480: {exact:.1f} ms exact, {noisy:.1f} ms with sensor noise "
               f"(median of {args.renders}); PyBullet redrawing the rigid scene alone: {rigid:.1f} ms\n")
     out.write(f"physics {args.scene}: {step:.1f} ms per 1/30 s frame (8 steps)\n")
+
+    raster, none, redraw = moving_occluder_render_ms(args.renders)
+    out.write(f"render occluder_sweep 640x480 while the occluder moves (median of {args.renders}): {raster:.1f} ms "
+              f"with it drawn by sim.raster, {none:.1f} ms without it, {redraw:.1f} ms with the same mesh as a "
+              "PyBullet body (the room redrawn every frame)\n")
+    for name in ("gripper_corner_move", "table_lift"):
+        drawn, clear = handled_render_ms(name, args.renders)
+        out.write(f"render {name} 640x480 (median of {args.renders}): {drawn:.1f} ms with the gripper and arm drawn, "
+                  f"{clear:.1f} ms without\n")
 
     start = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp, make_scene(args.scene, seed=0, noise=True) as scene, \

@@ -5,7 +5,9 @@ texture on both sides, at the right depth (``tests/unit/test_sim_camera.py`` com
 with our rasteriser), but a 640x480 frame of a room costs ~150 ms, most of it spent on
 the walls and floor. The rigid scene rarely moves, so the camera renders it with
 PyBullet only when a visible rigid body has moved, and draws the cloth itself
-(``sim.raster``, ~30 ms) over that picture, z-buffered against its depth.
+(``sim.raster``, ~30 ms) over that picture, z-buffered against its depth. Moving rigid
+bodies (an occluder, a robot's gripper and arm) are drawn the same way: as
+``sim.solids`` meshes that PyBullet never sees, so they do not trigger its redraw.
 
 Images come out exact; sensor noise is added by the scene (``sim.noise``).
 """
@@ -28,8 +30,12 @@ from sim.camera_model import (
 )
 from sim.physics import ClothPhysics
 from sim.raster import Shading, rasterise_mesh
+from sim.solids import SolidMesh, rasterise_solid
 
 log = logging.getLogger(__name__)
+
+#: ``Render.body_ids`` value where a solid drawn by ``sim.raster`` (``render(..., solids=)``) is seen
+SOLID_ID = -2
 
 
 @dataclass(frozen=True)
@@ -39,7 +45,7 @@ class Render:
     rgb : (H, W, 3) uint8 RGB
     depth_m : (H, W) float32 metres along the optical axis, 0 where nothing is drawn
     body_ids : (H, W) int32 PyBullet body id seen at each pixel (the cloth's id where
-        the cloth is seen), -1 for none
+        the cloth is seen), ``SOLID_ID`` (-2) where a drawn solid is seen, -1 for none
     """
 
     rgb: np.ndarray
@@ -115,24 +121,40 @@ class VirtualCamera:
         ids = np.where(ids < 0, -1, ids & ((1 << 24) - 1)).astype(np.int32)
         return Render(np.ascontiguousarray(rgb), depth_from_zbuffer(zb, self.near_m, self.far_m), ids)
 
-    def render(self, physics: ClothPhysics, cloth_texture_rgb: np.ndarray) -> Render:
+    def render(self, physics: ClothPhysics, cloth_texture_rgb: np.ndarray, solids: SolidMesh | None = None) -> Render:
         """Draw the world as it is now.
 
         cloth_texture_rgb : (Ht, Wt, 3) uint8 spanning the cloth's bounding box
         (``ClothMesh.texture_coords``)
+        solids : rigid bodies to draw besides PyBullet's (a SolidMesh, points in the world
+        frame), z-buffered with the cloth and the rigid scene; ``SOLID_ID`` in ``body_ids``
         """
         signature = physics.rigid_pose_signature()
         if self._background is None or self._background[0] != signature:
             self._background = (signature, self.render_rigid(physics))
             log.debug("rigid scene re-rendered")
-        background = self._background[1]
-        if physics.cloth_id is None:
-            return background
-        cloth = rasterise_mesh(self.world_to_camera(physics.cloth_vertices()), physics.cloth_mesh.faces,
-                               physics.cloth_mesh.texture_coords(), cloth_texture_rgb, self.camera, self._shading,
-                               near_m=self.near_m)
-        front = cloth.mask & ((background.depth_m == 0) | (cloth.depth_m < background.depth_m))
-        rgb = np.where(front[:, :, None], cloth.rgb, background.rgb)
-        depth = np.where(front, cloth.depth_m, background.depth_m)
-        ids = np.where(front, np.int32(physics.cloth_id), background.body_ids)
-        return Render(rgb, depth, ids)
+        layers = [self._background[1]]
+        if physics.cloth_id is not None:
+            cloth = rasterise_mesh(self.world_to_camera(physics.cloth_vertices()), physics.cloth_mesh.faces,
+                                   physics.cloth_mesh.texture_coords(), cloth_texture_rgb, self.camera, self._shading,
+                                   near_m=self.near_m)
+            layers.append((cloth, physics.cloth_id))
+        if solids is not None and len(solids.faces):
+            drawn = rasterise_solid(solids.transformed(self.T_cam_world), self.camera, self._shading, near_m=self.near_m)
+            layers.append((drawn, SOLID_ID))
+        return _composite(layers[0], layers[1:])
+
+
+def _composite(background: Render, layers: list) -> Render:
+    """The nearest of the background and each (MeshRaster, id) layer at every pixel."""
+    if not layers:
+        return background
+    rgb, depth, ids = background.rgb.copy(), background.depth_m.copy(), background.body_ids.copy()
+    nearest = np.where(depth > 0, depth, np.inf)
+    for raster, body_id in layers:
+        front = raster.mask & (raster.depth_m < nearest)
+        nearest[front] = raster.depth_m[front]
+        rgb[front] = raster.rgb[front]
+        depth[front] = raster.depth_m[front]
+        ids[front] = body_id
+    return Render(rgb, depth, ids)

@@ -8,6 +8,7 @@ frame 0 to the closest point of the true cloth surface and followed as a materia
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -32,8 +33,17 @@ ABLATIONS = {
 
 @dataclass
 class SceneRecording:
-    """frames : list of RGBDFrame; gt_vertices : (T, V, 3) float64 camera frame;
-    gt_faces : (F, 3) int; masks : list of (H, W) bool true cloth masks (noise-free)."""
+    """A scene's frames and its ground truth.
+
+    frames : list of RGBDFrame (without ``occluder_mask``; ``known_occluder_frames`` adds it)
+    gt_vertices : (T, V, 3) float64 camera frame; gt_faces : (F, 3) int
+    masks : list of (H, W) bool true cloth masks (noise-free)
+    occluder_masks : list of (H, W) bool, where a drawn occluder is seen (exact); empty when
+        the scene has no occluders or they were not drawn (a twin)
+    occluder_depths : list of (H, W) float32 metres, the occluder's exact depth where it is
+        seen, 0 elsewhere; empty as ``occluder_masks``
+    frame_step : 1, or k when only every k-th simulated frame was kept (timestamps stay true)
+    """
 
     name: str
     seed: int
@@ -42,6 +52,26 @@ class SceneRecording:
     gt_vertices: np.ndarray
     gt_faces: np.ndarray
     masks: list = field(default_factory=list)
+    occluder_masks: list = field(default_factory=list)
+    occluder_depths: list = field(default_factory=list)
+    frame_step: int = 1
+
+    def every(self, step: int) -> SceneRecording:
+        """The same recording with only every ``step``-th frame (from the first), as a camera
+        that drops frames or runs at 1/step of the rate would deliver it."""
+        if isinstance(step, bool) or int(step) != step or step < 1:
+            raise ValueError(f"SceneRecording.every: expected a positive integer step, got {step!r}")
+        k = int(step)
+        return SceneRecording(self.name, self.seed, self.noise, self.frames[::k], self.gt_vertices[::k],
+                              self.gt_faces, self.masks[::k], self.occluder_masks[::k], self.occluder_depths[::k],
+                              self.frame_step * k)
+
+    def known_occluder_frames(self) -> list:
+        """The frames carrying the exact occluder mask (``RGBDFrame.occluder_mask``), as a robot
+        that knows where its gripper and arm are would send them."""
+        if not self.occluder_masks:
+            return list(self.frames)
+        return [dataclasses.replace(f, occluder_mask=m) for f, m in zip(self.frames, self.occluder_masks)]
 
 
 @dataclass
@@ -77,19 +107,29 @@ class TrackRun:
         return out
 
 
-def record_scene(name: str, seed: int = 0, noise: bool = True, n_frames: int = 60, progress: bool = True) -> SceneRecording:
-    """Run the registered scene ``name`` and keep every frame with its ground truth."""
+def record_scene(name: str, seed: int = 0, noise: bool = True, n_frames: int | None = 60, progress: bool = True,
+                 occluders: bool = True) -> SceneRecording:
+    """Run the registered scene ``name`` and keep every frame with its ground truth.
+
+    n_frames : simulated frames (None: the scene's own script length)
+    occluders : draw the scene's occluders (False: its twin); ``SceneRecording.every`` drops frames
+    """
     from sim.scenes import make_scene  # PyBullet only when a scene is actually run
 
-    frames, gts, masks = [], [], []
-    with make_scene(name, seed=seed, noise=noise) as scene:
-        for frame in tqdm(scene.frames(n_frames), total=n_frames, desc=f"sim {name}", unit="frame",
+    frames, gts, masks, occluder_masks, occluder_depths = [], [], [], [], []
+    with make_scene(name, seed=seed, noise=noise, occluders=occluders) as scene:
+        total = scene.n_frames if n_frames is None else int(n_frames)
+        for frame in tqdm(scene.frames(total), total=total, desc=f"sim {name}", unit="frame",
                           disable=not progress, leave=False):
             frames.append(frame)
             gts.append(scene.cloth_vertices_cam())
-            masks.append(scene.cloth_mask().copy())
+            masks.append(scene.cloth_mask())
+            if scene.has_occluders and occluders:  # a twin draws none: nothing to keep
+                seen = scene.occluder_mask()
+                occluder_masks.append(seen)
+                occluder_depths.append(np.where(seen, scene.exact_depth_m(), np.float32(0.0)))
         faces = np.asarray(scene.faces)
-    return SceneRecording(name, seed, noise, frames, np.stack(gts), faces, masks)
+    return SceneRecording(name, seed, noise, frames, np.stack(gts), faces, masks, occluder_masks, occluder_depths)
 
 
 def track_recording(rec: SceneRecording, config: TrackerConfig, label: str = "tracker",

@@ -47,6 +47,46 @@ def error_over_time(path: Path, title: str, series: dict[str, np.ndarray], fps: 
     plt.close(fig)
 
 
+def error_with_occlusion(path: Path, title: str, runs: dict[str, dict], hidden_s: np.ndarray,
+                         hidden_fraction: np.ndarray, wrong_mm: float, confident: float) -> None:
+    """Error and confidence over time, with the occluder's passage shaded.
+
+    runs : label -> {"time_s": (T,), "mean_mm": (T,), "confidence": (T,), "lost": (T,) bool}
+    hidden_s, hidden_fraction : (S,) times and the fraction of the true cloth hidden by the
+        occluder then, drawn as a grey band on both panels (darker = more hidden)
+    wrong_mm, confident : the thresholds of a wrong and of a confident estimate, as dashed lines
+    """
+    fig, (ax_err, ax_conf) = plt.subplots(2, 1, figsize=(7.5, 5.2), sharex=True, height_ratios=(3, 2))
+    peak = max(float(np.max(hidden_fraction)), 1e-9) if len(hidden_fraction) else 1.0
+    step = float(np.median(np.diff(hidden_s))) if len(hidden_s) > 1 else 1.0 / 30.0
+    for ax in (ax_err, ax_conf):
+        for t, f in zip(hidden_s, hidden_fraction):
+            if f > 0:
+                ax.axvspan(t - 0.5 * step, t + 0.5 * step, color="0.3", alpha=0.08 + 0.25 * f / peak, lw=0)
+    for i, (label, run) in enumerate(runs.items()):
+        colour = f"C{i}"
+        t, err, conf, lost = (np.asarray(run[k]) for k in ("time_s", "mean_mm", "confidence", "lost"))
+        ax_err.plot(t, err, color=colour, label=label, marker="." if len(t) < 60 else None, ms=3)
+        ax_conf.plot(t, conf, color=colour)
+        if lost.any():
+            ax_err.plot(t[lost], err[lost], "x", color=colour, ms=5)
+    ax_err.axhline(wrong_mm, color="k", linestyle="--", lw=0.8)
+    ax_conf.axhline(confident, color="k", linestyle="--", lw=0.8)
+    ax_err.set_ylabel("mean vertex error (mm)")
+    ax_err.set_yscale("symlog", linthresh=10.0)
+    ax_err.set_ylim(bottom=0.0)
+    ax_conf.set_ylabel("confidence")
+    ax_conf.set_ylim(-0.02, 1.02)
+    ax_conf.set_xlabel(f"time (s); shaded: cloth hidden by the occluder (up to {100 * peak:.0f} %); x: flagged lost")
+    ax_err.set_title(title, fontsize=10)
+    for ax in (ax_err, ax_conf):
+        ax.grid(alpha=0.3)
+    ax_err.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 def cloud_of(frame, mask: np.ndarray, max_points: int = 4000, rng=None) -> tuple[np.ndarray, np.ndarray]:
     """The object's coloured point cloud: points (P, 3) camera frame and colours (P, 3) in [0, 1]."""
     rng = rng if rng is not None else np.random.default_rng(0)
@@ -93,9 +133,24 @@ def views(path: Path, title: str, cloud: tuple[np.ndarray, np.ndarray], meshes: 
     plt.close(fig)
 
 
-def overlay_strip(path: Path, frames: list, estimates: list, picks: list[int]) -> None:
-    """The mesh drawn over the RGB frames ``picks`` side by side (the paper's Fig. 6, top row)."""
-    tiles = [draw_mesh(frames[i].rgb, estimates[i], frames[i].camera.K) for i in picks]
+def overlay_strip(path: Path, frames: list, estimates: list, picks: list[int], region: np.ndarray | None = None,
+                  margin_px: int = 40) -> None:
+    """The mesh drawn over the RGB frames ``picks`` side by side (the paper's Fig. 6, top row).
+
+    region : (H, W) bool, optional; each tile shows only its bounding box plus ``margin_px``
+    """
+    H, W = frames[picks[0]].rgb.shape[:2]
+    y0, y1, x0, x1 = 0, H, 0, W
+    if region is not None and np.any(region):
+        rows, cols = np.nonzero(region)
+        y0, y1 = max(rows.min() - margin_px, 0), min(rows.max() + margin_px + 1, H)
+        x0, x1 = max(cols.min() - margin_px, 0), min(cols.max() + margin_px + 1, W)
+    tiles = []
+    for i in picks:
+        K = frames[i].camera.K.copy()
+        K[0, 2] -= x0
+        K[1, 2] -= y0
+        tiles.append(draw_mesh(np.ascontiguousarray(frames[i].rgb[y0:y1, x0:x1]), estimates[i], K))
     h = 240
     tiles = [cv2.resize(t, (int(t.shape[1] * h / t.shape[0]), h), interpolation=cv2.INTER_AREA) for t in tiles]
     strip = np.concatenate(tiles, axis=1)

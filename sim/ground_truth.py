@@ -1,9 +1,15 @@
 """Accuracy of an estimated mesh against the simulated cloth (pure NumPy).
 
-DESIGN.md "Measuring": each estimated vertex is bound at frame 0 to its closest point
-on the true cloth surface (a true triangle and barycentric coordinates in it); at
-frame t its error is the distance to where that material point has moved. Errors are
-reported as mean and 95th percentile in millimetres.
+Each estimated vertex is bound at frame 0 to its closest point on the true cloth
+surface (a true triangle and barycentric coordinates in it); at frame t its error is
+the distance to where that material point has moved. Errors are reported as mean and
+95th percentile in millimetres.
+
+Under occlusion (``hidden_behind_occluder``, ``occluded_area_ratio``): an estimated
+vertex is truly hidden when its material point projects onto the occluder's exact mask
+and lies behind the occluder there; the faces whose three vertices are hidden are the
+occluded part of the mesh, and their area, over the same faces' area in the tracker's
+canonical (rest) mesh, tells whether that part kept its size.
 
 Arrays: points and vertices are (N, 3) / (T, N, 3) float, metres, all in one frame
 (the camera frame for recorded sequences); faces are (F, 3) int vertex ids.
@@ -131,6 +137,23 @@ def surface_points(vertices: np.ndarray, faces: np.ndarray, tri_ids: np.ndarray,
     return np.einsum("...nkd,nk->...nd", corners, np.asarray(bary, dtype=np.float64))
 
 
+def material_point_tracks(first_vertices: np.ndarray, gt_vertices: np.ndarray, gt_faces: np.ndarray) -> np.ndarray:
+    """Where the true cloth's material points under a mesh's first-frame vertices move.
+
+    first_vertices : (N, 3) float, metres, the estimated mesh in the first frame
+    gt_vertices : (T, V, 3) float, metres, true cloth per frame (the first is bound to)
+    gt_faces : (F, 3) int
+    returns (T, N, 3) float64: each vertex's closest point on the first true surface,
+    followed through the frames as a material point (triangle and barycentrics fixed)
+    """
+    first = _check_vertices(first_vertices, "first_vertices", 2)
+    gt = _check_vertices(gt_vertices, "gt_vertices", 3)
+    if gt.shape[0] == 0:
+        raise ValueError("material_point_tracks: expected at least one frame of gt_vertices, got 0")
+    tri_ids, bary = bind_to_surface(first, gt[0], gt_faces)
+    return surface_points(gt, gt_faces, tri_ids, bary)
+
+
 def vertex_errors(est_vertices: np.ndarray, gt_vertices: np.ndarray, gt_faces: np.ndarray) -> np.ndarray:
     """Distance of each estimated vertex to its material point on the true cloth.
 
@@ -146,9 +169,73 @@ def vertex_errors(est_vertices: np.ndarray, gt_vertices: np.ndarray, gt_faces: n
         raise ValueError(f"vertex_errors: est_vertices has {est.shape[0]} frames, gt_vertices {gt.shape[0]}")
     if est.shape[0] == 0:
         raise ValueError("vertex_errors: expected at least one frame, got 0")
-    tri_ids, bary = bind_to_surface(est[0], gt[0], gt_faces)
-    targets = surface_points(gt, gt_faces, tri_ids, bary)
-    return np.linalg.norm(est - targets, axis=-1)
+    return np.linalg.norm(est - material_point_tracks(est[0], gt, gt_faces), axis=-1)
+
+
+def hidden_behind_occluder(points_cam: np.ndarray, occluder_mask: np.ndarray, occluder_depth_m: np.ndarray,
+                           K: np.ndarray, margin_m: float = 0.0) -> np.ndarray:
+    """Which points an occluder hides from the camera.
+
+    points_cam : (N, 3) float, metres, camera optical frame (e.g. material points of the
+        true cloth)
+    occluder_mask : (H, W) bool, where the occluder is seen (exact, before noise)
+    occluder_depth_m : (H, W) float, metres, the occluder's depth where it is seen
+    K : (3, 3) pinhole intrinsics; margin_m : a point must lie this far behind
+    returns (N,) bool: the point projects (to the nearest pixel centre) onto the mask and
+    lies behind the occluder there; points outside the image or behind the camera are not
+    hidden by it
+    """
+    pts = _check_vertices(points_cam, "points_cam", 2)
+    mask = np.asarray(occluder_mask, dtype=bool)
+    depth = np.asarray(occluder_depth_m, dtype=np.float64)
+    if mask.ndim != 2 or depth.shape != mask.shape:
+        raise ValueError(f"hidden_behind_occluder: expected an (H, W) mask and depth of one shape, got "
+                         f"{mask.shape} and {depth.shape}")
+    K = np.asarray(K, dtype=np.float64)
+    if K.shape != (3, 3):
+        raise ValueError(f"hidden_behind_occluder: expected K of shape (3, 3), got {K.shape}")
+    H, W = mask.shape
+    z = pts[:, 2]
+    ahead = z > 1e-9
+    with np.errstate(divide="ignore", invalid="ignore"):
+        col = np.rint(K[0, 0] * pts[:, 0] / z + K[0, 2])
+        row = np.rint(K[1, 1] * pts[:, 1] / z + K[1, 2])
+    inside = ahead & (col >= 0) & (col < W) & (row >= 0) & (row < H)
+    hidden = np.zeros(len(pts), bool)
+    c, r = col[inside].astype(np.int64), row[inside].astype(np.int64)
+    hidden[inside] = mask[r, c] & (z[inside] > depth[r, c] + float(margin_m))
+    return hidden
+
+
+def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(F,) float64 areas of the triangles ``faces`` (F, 3) of ``vertices`` (N, 3), square metres."""
+    v = _check_vertices(vertices, "vertices", 2)
+    f = _check_faces(faces, len(v), "faces")
+    return 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+
+
+def occluded_area_ratio(vertices: np.ndarray, canonical: np.ndarray, faces: np.ndarray,
+                        hidden: np.ndarray) -> tuple[float, float]:
+    """Does the occluded part of an estimated mesh keep its area?
+
+    vertices : (N, 3) the estimate in one frame; canonical : (N, 3) the tracker's rest mesh
+    faces : (F, 3) int; hidden : (N,) bool, the vertices truly hidden (``hidden_behind_occluder``)
+    returns (ratio, canonical_area_m2): the summed area of the faces whose three vertices are
+    hidden, over the same faces' area in ``canonical``; (nan, 0.0) when no face is hidden.
+    1 means the hidden part kept its size; below 1 it was squeezed, above stretched.
+    """
+    hid = np.asarray(hidden, dtype=bool)
+    v = _check_vertices(vertices, "vertices", 2)
+    if hid.shape != (len(v),):
+        raise ValueError(f"occluded_area_ratio: expected hidden of shape ({len(v)},), got {hid.shape}")
+    f = _check_faces(faces, len(v), "faces")
+    covered = f[hid[f].all(axis=1)]
+    if len(covered) == 0:
+        return float("nan"), 0.0
+    rest = float(face_areas(canonical, covered).sum())
+    if rest <= 0:
+        raise ValueError("occluded_area_ratio: the hidden faces have no area in the canonical mesh")
+    return float(face_areas(v, covered).sum()) / rest, rest
 
 
 def error_summary(errors_m: np.ndarray) -> dict:

@@ -191,6 +191,8 @@ def rasterise_mesh(points_cam: np.ndarray, faces: np.ndarray, tex_coords: np.nda
     owner = np.full(W * H, -1, np.int64)
     owner[pix[win]] = win  # ties (shared edges): the last candidate wins
     drawn = np.nonzero(owner >= 0)[0]
+    if len(drawn) == 0:  # triangles thinner than a pixel that cover no pixel centre
+        return MeshRaster(rgb, depth, mask)
     k = owner[drawn]
 
     # perspective-correct weights, then per-vertex attributes: texture coordinates and

@@ -17,6 +17,21 @@ Scenes (``SCENES``, ``make_scene(name, seed=..., noise=...)``):
 - ``towel_sway``: a printed towel hanging from two grippers that sway and come closer,
   so it swings and folds.
 
+Scenes of a cloth being handled (``HANDLED_SCENES``), each with a drawn occluder:
+
+- ``occluder_sweep``: an arm- or hand-sized bar or capsule sweeps across in front of a
+  hanging printed cloth.
+- ``gripper_corner_move``: a robot's parallel gripper, with its wrist and arm, grasps a
+  hanging cloth's free bottom corner, lifts it and carries it sideways.
+- ``table_lift``: a robot's gripper lifts a printed cloth lying flat on a table by one
+  corner, at robot speed, until it hangs.
+
+Their occluders are drawn (``sim.solids``), never simulated: a scene made with
+``occluders=False`` is their twin, the same cloth moving the same way with nothing drawn
+in front of it. With ``known_occluders=True`` the frames carry the exact mask of the
+occluders as rendered (``RGBDFrame.occluder_mask``), as a robot that knows where its own
+gripper and arm are would send it.
+
 World frame: z up, the camera looks roughly along +y at the cloth, which faces -y.
 The same seed gives the same frames; noise on or off does not change the scene.
 """
@@ -28,13 +43,16 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ipc.messages import CameraInfo, RGBDFrame
-from sim.camera import Lighting, VirtualCamera
-from sim.camera_model import look_at
+from sim.camera import SOLID_ID, Lighting, VirtualCamera
+from sim.camera_model import look_at, transform_points
 from sim.cloth_mesh import ClothMesh, TShirtShape, rectangle_mesh, tshirt_mesh
 from sim.noise import DepthNoiseModel, add_colour_noise, add_depth_noise
 from sim.physics import ClothMaterial, ClothPhysics
+from sim.robot_drawing import GripperLook
+from sim.solids import SolidMesh, box, capsule
 from sim.textures import plain_texture, poster_texture, random_plain_colour
 
 log = logging.getLogger(__name__)
@@ -59,6 +77,16 @@ Pose = tuple  # (position (3,) metres, quat_xyzw (4,)) in the world frame
 
 
 @dataclass(frozen=True)
+class GraspEvent:
+    """At ``time_s`` (seconds after frame 0, taken at the nearest frame), gripper number
+    ``gripper`` closes on the cloth nodes within ``GRASP_RADIUS_M`` of vertex ``vertex``."""
+
+    time_s: float
+    gripper: int
+    vertex: int
+
+
+@dataclass(frozen=True)
 class SceneSpec:
     """Everything a scene needs, as data.
 
@@ -66,13 +94,21 @@ class SceneSpec:
     texture_rgb : (H, W, 3) uint8 spanning the cloth's bounding box
     material : ClothMaterial
     boxes : scenery
-    grasp_vertices : one cloth vertex id per gripper; each gripper starts there and pins
-        the nodes within ``GRASP_RADIUS_M``
+    grasp_vertices : one cloth vertex id for each of the first grippers (the holders);
+        each of them starts there and pins the nodes within ``GRASP_RADIUS_M``
     gripper_poses : t (seconds after frame 0) -> one Pose per gripper; at t = 0 the
-        positions are those of the grasp vertices
+        holders' positions are those of their grasp vertices, and any further gripper
+        (a robot's) starts free at its pose
     camera : CameraInfo; T_world_cam : (4, 4) optical frame to world
     settle_s : simulated time before frame 0, grippers still, so the cloth hangs at rest
-    timestep_s : physics step, a whole fraction of the 1/30 s frame period
+    timestep_s : the step the cloth's springs are made for, a whole fraction of the 1/30 s
+        frame period
+    substeps : physics steps per ``timestep_s`` (the same cloth integrated more finely,
+        for contact with a table)
+    n_frames : frames the script is written for
+    grasp_events : GraspEvent, grippers closing on the cloth after frame 0
+    occluders : t -> SolidMesh (world frame) of the rigid bodies drawn in front of the
+        camera at time t (None: nothing then); None for a scene without occluders
     """
 
     name: str
@@ -88,6 +124,10 @@ class SceneSpec:
     settle_s: float = 1.0
     timestep_s: float = 1.0 / 240.0
     lighting: Lighting = field(default_factory=Lighting)
+    substeps: int = 1
+    n_frames: int = DEFAULT_FRAMES
+    grasp_events: tuple = ()
+    occluders: Callable[[float], SolidMesh | None] | None = None
 
 
 def kinect_camera(width: int, height: int) -> CameraInfo:
@@ -292,6 +332,370 @@ def towel_sway_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
     )
 
 
+# ----------------------------------------------------------------------------- handled scenes
+
+#: Frames of a handled scene's script: its motion, then a short still end, clipped to this range.
+HANDLED_FRAMES = (60, 90)
+#: Seconds each handled script runs on after its motion, so recovery can be seen.
+_AFTER_S = 0.5
+#: Half extents (x, y) of the table of ``table_lift``, metres.
+TABLE_HALF_XY_M = (0.6, 0.4)
+
+
+def _frames_for(duration_s: float) -> int:
+    return int(np.clip(np.ceil(duration_s * FPS), *HANDLED_FRAMES))
+
+
+def _printed(mesh: ClothMesh, rng: np.random.Generator, px_per_m: float = 900.0) -> np.ndarray:
+    """A poster texture for ``mesh`` whose density of shapes and words varies by a factor 0.5-1.5."""
+    width, height = mesh.size_m
+    density = rng.uniform(0.5, 1.5) * width * height / 0.27
+    return poster_texture(rng, round(width * px_per_m), round(height * px_per_m),
+                          n_shapes=max(20, int(120 * density)), n_words=max(3, int(10 * density)))
+
+
+def _gripper_rotation(approach, closing_hint) -> np.ndarray:
+    """(3, 3) R_world_gripper: z along ``approach``, x along ``closing_hint`` made perpendicular to it."""
+    z = np.asarray(approach, dtype=np.float64)
+    z = z / np.linalg.norm(z)
+    x = np.asarray(closing_hint, dtype=np.float64)
+    x = x - (x @ z) * z
+    x /= np.linalg.norm(x)
+    return np.column_stack([x, np.cross(z, x), z])
+
+
+def _trapezoid(tau_s: float, distance_m: float, speed_m_s: float, ramp_s: float) -> tuple[float, float]:
+    """(fraction of ``distance_m`` covered after ``tau_s``, total duration) of a move that speeds up
+    over ``ramp_s`` to ``speed_m_s``, cruises, and slows down over ``ramp_s`` (or less, if short)."""
+    accel = speed_m_s / ramp_s
+    if distance_m <= 0:
+        return 1.0, 0.0
+    if distance_m < speed_m_s * ramp_s:  # never reaches the cruising speed
+        peak = np.sqrt(accel * distance_m)
+        ramp, cruise = peak / accel, 0.0
+    else:
+        peak, ramp = speed_m_s, ramp_s
+        cruise = (distance_m - speed_m_s * ramp_s) / speed_m_s
+    total = 2.0 * ramp + cruise
+    tau = float(np.clip(tau_s, 0.0, total))
+    if tau < ramp:
+        covered = 0.5 * accel * tau * tau
+    elif tau < ramp + cruise:
+        covered = 0.5 * accel * ramp * ramp + peak * (tau - ramp)
+    else:
+        covered = distance_m - 0.5 * accel * (total - tau) ** 2
+    return covered / distance_m, total
+
+
+@dataclass(frozen=True)
+class PickAndMove:
+    """A robot gripper's script: approach along its z to a grasp point, close, then move by an offset.
+
+    grasp_m : (3,) world point where the fingertips close; R : (3, 3) R_world_gripper,
+    constant (``sim.robot_drawing`` frame: z approach, x closing)
+    pregrasp_m : the approach starts this far back along -z, at t = 0
+    approach_speed_m_s, move_speed_m_s : cruising speeds (ramps of ``ramp_s``)
+    move_m : (3,) world offset of the move after the grasp
+    look : GripperLook; shoulder_m : (3,) world point the arm is mounted at
+    close_s : the fingers close over this time once the grasp point is reached; the grasp
+        (``grasp_time_s``) is on the first frame after
+    closed_opening_m : the fingers' opening once closed on the cloth
+    """
+
+    grasp_m: np.ndarray
+    R: np.ndarray
+    pregrasp_m: float
+    approach_speed_m_s: float
+    move_m: np.ndarray
+    move_speed_m_s: float
+    look: GripperLook
+    shoulder_m: np.ndarray
+    close_s: float = 0.1
+    closed_opening_m: float = 0.006
+    ramp_s: float = 0.15
+
+    @property
+    def reached_s(self) -> float:
+        return _trapezoid(0.0, self.pregrasp_m, self.approach_speed_m_s, self.ramp_s)[1]
+
+    @property
+    def grasp_time_s(self) -> float:
+        """Time of the frame at which the fingers have closed and hold the cloth."""
+        return float(np.ceil((self.reached_s + self.close_s) * FPS - 1e-9) / FPS)
+
+    @property
+    def move_start_s(self) -> float:
+        return self.grasp_time_s + 1.0 / FPS
+
+    @property
+    def end_s(self) -> float:
+        """When the move ends."""
+        return self.move_start_s + _trapezoid(0.0, float(np.linalg.norm(self.move_m)), self.move_speed_m_s,
+                                              self.ramp_s)[1]
+
+    def position(self, t: float) -> np.ndarray:
+        """(3,) fingertip centre at time t, metres, world."""
+        if t < self.move_start_s:
+            done, _ = _trapezoid(t, self.pregrasp_m, self.approach_speed_m_s, self.ramp_s)
+            return self.grasp_m - (1.0 - done) * self.pregrasp_m * self.R[:, 2]
+        done, _ = _trapezoid(t - self.move_start_s, float(np.linalg.norm(self.move_m)), self.move_speed_m_s,
+                             self.ramp_s)
+        return self.grasp_m + done * self.move_m
+
+    def pose(self, t: float) -> Pose:
+        return self.position(t), Rotation.from_matrix(self.R).as_quat()
+
+    def opening(self, t: float) -> float:
+        """Distance between the fingers at time t, metres."""
+        closing = np.clip((t - self.reached_s) / (self.grasp_time_s - self.reached_s), 0.0, 1.0)
+        return float(self.look.max_opening_m + closing * (self.closed_opening_m - self.look.max_opening_m))
+
+    def mesh(self, t: float) -> SolidMesh:
+        """The drawn gripper, wrist and arm at time t (world frame)."""
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = self.R, self.position(t)
+        return self.look.mesh(T, self.opening(t), self.shoulder_m)
+
+
+def _occluder_colour(rng: np.random.Generator) -> tuple:
+    """A skin tone, a sleeve's colour or a robot's grey."""
+    kind = rng.integers(0, 3)
+    if kind == 0:
+        tones = np.array([(236, 188, 150), (205, 150, 110), (160, 110, 75), (110, 72, 50)], dtype=float)
+        return tuple(np.clip(tones[rng.integers(0, len(tones))] + rng.uniform(-10, 10, 3), 0, 255))
+    if kind == 1:
+        return random_plain_colour(rng)
+    grey = rng.uniform(60, 200)
+    return (grey, grey, grey + rng.uniform(0, 10))
+
+
+def occluder_sweep_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
+    """An arm- or hand-sized bar or capsule sweeps across in front of a hanging printed cloth.
+
+    The cloth (0.45-0.75 m by 0.35-0.60 m) hangs from its top corners, which sway 2-8 cm
+    sideways and up to 3 cm back and forth, so that the hidden part moves too. The
+    occluder, 6-12 cm wide and 0.5-0.8 m long (a box or a capsule), lies 20-40 cm in
+    front of the cloth with its long axis up or down (within 20 degrees of square to its
+    path) and moves at a constant 0.35-1.0 m/s (faster when a slow pass would
+    not fit in 90 frames), left to right or right to left, up to 25 degrees off the
+    horizontal, from wholly beside the cloth to wholly beyond its other side as the camera
+    sees them. The camera stands 1.1-1.35 m in front of the cloth.
+    """
+    width, height = rng.uniform(0.45, 0.75), rng.uniform(0.35, 0.60)
+    mesh = rectangle_mesh(width, height, spacing_m=0.025)
+    top_z = rng.uniform(1.30, 1.50)
+    verts = _hang_facing_camera(mesh, np.array([0.0, 0.0, top_z]))
+    grasps = (mesh.landmarks["top_left"], mesh.landmarks["top_right"])
+    start = [verts[g] for g in grasps]
+    sway_m, sway_period_s = rng.uniform(0.02, 0.08), rng.uniform(2.0, 4.0)
+    fore_m, fore_period_s = rng.uniform(0.0, 0.03), rng.uniform(1.5, 3.0)
+
+    def offsets(t: float) -> list:
+        x = sway_m * np.sin(2.0 * np.pi * t / sway_period_s)
+        y = fore_m * np.sin(2.0 * np.pi * t / fore_period_s)
+        return [((x, y, 0.0), 0.0)] * 2
+
+    camera_distance = rng.uniform(1.10, 1.35)
+    bottom_z = top_z - height
+    T_world_cam = _camera_pose(rng, eye=(0.0, -camera_distance, top_z - 0.05), target=(0.0, 0.0, top_z - 0.5 * height))
+
+    capsule_shaped = bool(rng.random() < 0.5)
+    thickness = rng.uniform(0.06, 0.12)
+    depth = rng.uniform(0.04, 0.08)
+    length = rng.uniform(0.5, 0.8)
+    gap = rng.uniform(0.20, 0.40)
+    speed = rng.uniform(0.35, 1.0)
+    heading, tilt = rng.choice([-1.0, 1.0]), np.radians(rng.uniform(-25.0, 25.0))
+    direction = np.array([heading * np.cos(tilt), 0.0, np.sin(tilt)])
+    from_above = bool(rng.random() < 0.6)
+    lean = np.radians(rng.uniform(-20.0, 20.0))
+    square = np.array([-direction[2], 0.0, direction[0]])  # direction turned 90 degrees in the x-z plane
+    square *= 1.0 if (square[2] > 0) == from_above else -1.0
+    axis = np.cos(lean) * square + np.sin(lean) * direction
+    fraction = rng.uniform(0.15, 0.55) if from_above else rng.uniform(0.45, 0.85)
+    through = np.array([rng.uniform(-0.15, 0.15) * width, -gap, bottom_z + fraction * height])
+    lead_in_s = rng.uniform(0.1, 0.3)
+    colour = _occluder_colour(rng)
+    across = direction - (direction @ axis) * axis
+    across /= np.linalg.norm(across)
+    R_box = np.column_stack([across, np.cross(axis, across), axis])
+
+    def shape(along_m: float) -> SolidMesh:
+        """The occluder with its end ``along_m`` from ``through`` along its path."""
+        end = through + along_m * direction
+        if capsule_shaped:
+            return capsule(end, end + length * axis, 0.5 * thickness, colour)
+        T = np.eye(4)
+        T[:3, :3], T[:3, 3] = R_box, end + 0.5 * length * axis
+        return box((0.5 * thickness, 0.5 * depth, 0.5 * length), colour, T)
+
+    # the path runs from where the camera sees the occluder wholly beside the swaying cloth
+    # to where it sees it wholly beyond the other side
+    T_cam_world = np.linalg.inv(T_world_cam)
+    cloth_cam = transform_points(T_cam_world, verts)
+    reach = (sway_m + 0.03) / camera_distance
+    cloth_x = (cloth_cam[:, 0] / cloth_cam[:, 2]).min() - reach, (cloth_cam[:, 0] / cloth_cam[:, 2]).max() + reach
+
+    def beside(along_m: float) -> bool:
+        p = transform_points(T_cam_world, shape(along_m).points)
+        x = p[:, 0] / p[:, 2]
+        return x.max() < cloth_x[0] or x.min() > cloth_x[1]
+
+    path = [0.0, 0.0]
+    for k, sign in enumerate((-1.0, 1.0)):
+        while not beside(path[k]) and abs(path[k]) < 3.0:
+            path[k] += 0.01 * sign
+    # a slow pass over a long path would not fit in the frames: it goes faster
+    speed = max(speed, (path[1] - path[0]) / (HANDLED_FRAMES[1] / FPS - lead_in_s - _AFTER_S))
+
+    def occluders(t: float) -> SolidMesh:
+        return shape(path[0] + speed * (t - lead_in_s))
+
+    return SceneSpec(
+        name="occluder_sweep",
+        cloth=mesh,
+        cloth_vertices_world=verts,
+        texture_rgb=_printed(mesh, rng),
+        material=ClothMaterial(mass_per_area_kg_m2=rng.uniform(0.18, 0.3)),
+        boxes=_room(rng, wall_y_m=rng.uniform(0.6, 1.0)),
+        grasp_vertices=grasps,
+        gripper_poses=_two_hand_script(start, offsets),
+        camera=camera,
+        T_world_cam=T_world_cam,
+        n_frames=_frames_for(lead_in_s + (path[1] - path[0]) / speed + _AFTER_S),
+        occluders=occluders,
+    )
+
+
+def gripper_corner_move_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
+    """A robot's gripper, wrist and arm grasp a hanging cloth's free bottom corner, lift it and carry it sideways.
+
+    The printed cloth (0.40-0.65 m by 0.35-0.55 m) hangs from its top corners. The
+    gripper (``GripperLook.random``) comes from outside the cloth's left or right edge,
+    20-70 degrees towards the camera and 10-40 degrees from above, approaching 10-16 cm at
+    0.3-0.5 m/s; it closes on the bottom corner and moves it 15-30 cm sideways (in or
+    out), 10-25 cm up and up to 10 cm towards the camera at 0.3-0.6 m/s. Its arm reaches
+    back to a shoulder 35-55 cm in front of the cloth, up to 35 cm from the corner towards
+    the cloth's middle and 25-55 cm above it, so the arm crosses in front of the cloth.
+    """
+    width, height = rng.uniform(0.40, 0.65), rng.uniform(0.35, 0.55)
+    mesh = rectangle_mesh(width, height, spacing_m=0.025)
+    top_z = rng.uniform(1.40, 1.55)
+    verts = _hang_facing_camera(mesh, np.array([0.0, 0.0, top_z]))
+    holders = (mesh.landmarks["top_left"], mesh.landmarks["top_right"])
+    side = float(rng.choice([-1.0, 1.0]))
+    corner = mesh.landmarks["bottom_right" if side > 0 else "bottom_left"]
+    corner_at = verts[corner]
+    look = GripperLook.random(rng)
+    yaw, pitch = np.radians(rng.uniform(20.0, 70.0)), np.radians(rng.uniform(10.0, 40.0))
+    back = np.array([side * np.cos(yaw) * np.cos(pitch), -np.sin(yaw) * np.cos(pitch), np.sin(pitch)])
+    in_plane = np.array([-back[0], 0.0, -back[2]])
+    script = PickAndMove(
+        grasp_m=corner_at + 0.012 * in_plane / np.linalg.norm(in_plane),
+        R=_gripper_rotation(-back, closing_hint=(0.0, 1.0, 0.0)),
+        pregrasp_m=rng.uniform(0.10, 0.16),
+        approach_speed_m_s=rng.uniform(0.3, 0.5),
+        move_m=np.array([rng.choice([-1.0, 1.0]) * rng.uniform(0.15, 0.30), -rng.uniform(0.0, 0.10),
+                         rng.uniform(0.10, 0.25)]),
+        move_speed_m_s=rng.uniform(0.3, 0.6),
+        look=look,
+        # the robot stands in front of the cloth: its arm reaches across the cloth's front to the corner
+        shoulder_m=corner_at + np.array([-side * rng.uniform(0.0, 0.35), -rng.uniform(0.35, 0.55),
+                                         rng.uniform(0.25, 0.55)]),
+    )
+    start = [verts[g] for g in holders]
+
+    def poses(t: float) -> list:
+        return [(p, _yaw_quat(0.0)) for p in start] + [script.pose(t)]
+
+    eye = (side * rng.uniform(0.0, 0.15), -rng.uniform(1.25, 1.45), top_z - 0.1)
+    target = (0.25 * script.move_m[0], 0.0, top_z - 0.55 * height)
+    return SceneSpec(
+        name="gripper_corner_move",
+        cloth=mesh,
+        cloth_vertices_world=verts,
+        texture_rgb=_printed(mesh, rng),
+        material=ClothMaterial(mass_per_area_kg_m2=rng.uniform(0.18, 0.3)),
+        boxes=_room(rng, wall_y_m=rng.uniform(0.6, 1.0)),
+        grasp_vertices=holders,
+        gripper_poses=poses,
+        camera=camera,
+        T_world_cam=_camera_pose(rng, eye=eye, target=target),
+        n_frames=_frames_for(script.end_s + _AFTER_S),
+        grasp_events=(GraspEvent(script.grasp_time_s, 2, corner),),
+        occluders=script.mesh,
+    )
+
+
+def table_lift_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
+    """A printed cloth lying flat on a table is lifted by one corner at robot speed until it hangs.
+
+    The cloth (0.30-0.42 m by 0.25-0.34 m) lies turned by up to 35 degrees near the
+    middle of a table 0.72-0.78 m high. A robot's gripper approaches one of its corners
+    from 10-13 cm above (up to 20 degrees off the vertical) at 0.3-0.5 m/s, closes on it
+    and lifts it by the cloth's diagonal plus 8 cm at 0.3-0.5 m/s, drifting up to 12 cm
+    sideways, so that the cloth ends hanging from that corner. Its arm reaches to a
+    shoulder 0.5-0.8 m above the table, on any side but straight in front. The camera looks
+    down at 30-45 degrees from 1.0-1.2 m in front of the table.
+    """
+    table_top = rng.uniform(0.72, 0.78)
+    grey = rng.uniform(0.5, 0.65)
+    boxes = (
+        Box((4.0, 4.0, 0.01), (0.0, 0.0, -0.01), (0.42, 0.40, 0.37, 1.0)),
+        Box((*TABLE_HALF_XY_M, 0.02), (0.0, 0.0, table_top - 0.02), (grey, grey, grey + 0.03, 1.0)),
+    )
+    width, height = rng.uniform(0.30, 0.42), rng.uniform(0.25, 0.34)
+    mesh = rectangle_mesh(width, height, spacing_m=0.025)
+    yaw = rng.uniform(-0.6, 0.6)
+    right, down = np.array([np.cos(yaw), np.sin(yaw), 0.0]), np.array([np.sin(yaw), -np.cos(yaw), 0.0])
+    centre = np.array([rng.uniform(-0.08, 0.08), rng.uniform(-0.05, 0.05), table_top + 0.008])
+    verts = mesh.layout_points(centre - 0.5 * width * right - 0.5 * height * down, right, down)  # front up
+    corner = mesh.landmarks[("top_left", "top_right", "bottom_left", "bottom_right")[int(rng.integers(0, 4))]]
+    corner_at = verts[corner]
+    inward = centre - corner_at
+    inward[2] = 0.0
+    inward /= np.linalg.norm(inward)
+    look = GripperLook.random(rng)
+    tilt, tilt_dir = np.radians(rng.uniform(0.0, 20.0)), rng.uniform(0.0, 2.0 * np.pi)
+    approach = np.array([np.sin(tilt) * np.cos(tilt_dir), np.sin(tilt) * np.sin(tilt_dir), -np.cos(tilt)])
+    drift, drift_dir = rng.uniform(0.0, 0.12), rng.uniform(0.0, 2.0 * np.pi)
+    shoulder_dir = np.radians(rng.uniform(-30.0, 210.0))
+    reach = rng.uniform(0.35, 0.5)
+    script = PickAndMove(
+        grasp_m=corner_at + 0.015 * inward + np.array([0.0, 0.0, 0.004]),
+        R=_gripper_rotation(approach, closing_hint=inward),
+        pregrasp_m=rng.uniform(0.10, 0.13),
+        approach_speed_m_s=rng.uniform(0.3, 0.5),
+        move_m=np.array([drift * np.cos(drift_dir), drift * np.sin(drift_dir), np.hypot(width, height) + 0.08]),
+        move_speed_m_s=rng.uniform(0.3, 0.5),
+        look=look,
+        shoulder_m=np.array([corner_at[0] + reach * np.cos(shoulder_dir), corner_at[1] + reach * np.sin(shoulder_dir),
+                             table_top + rng.uniform(0.5, 0.8)]),
+    )
+    distance, elevation = rng.uniform(1.0, 1.2), np.radians(rng.uniform(30.0, 45.0))
+    azimuth = np.radians(-90.0 + rng.uniform(-20.0, 20.0))
+    target = np.array([*(0.5 * (centre[:2] + corner_at[:2]) + 0.5 * script.move_m[:2]), table_top + 0.3])
+    eye = target + distance * np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                                        np.sin(elevation)])
+    return SceneSpec(
+        name="table_lift",
+        cloth=mesh,
+        cloth_vertices_world=verts,
+        texture_rgb=_printed(mesh, rng),
+        material=ClothMaterial(mass_per_area_kg_m2=rng.uniform(0.25, 0.35)),
+        boxes=boxes,
+        grasp_vertices=(),
+        gripper_poses=lambda t: [script.pose(t)],
+        camera=camera,
+        T_world_cam=_camera_pose(rng, eye=eye, target=target),
+        settle_s=0.6,
+        substeps=2,
+        n_frames=_frames_for(script.end_s + _AFTER_S),
+        grasp_events=(GraspEvent(script.grasp_time_s, 0, corner),),
+        occluders=script.mesh,
+    )
+
+
 def _check_seed(seed) -> int:
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
         raise ValueError(f"ClothScene: expected a non-negative integer seed, got {seed!r}")
@@ -306,6 +710,10 @@ class ClothScene:
         independent streams of it, so ``noise=False`` shows the same scene exactly
     noise : add sensor noise (``sim.noise``) to rendered frames
     width, height : image size in pixels (intrinsics scale with the width)
+    occluders : draw the script's occluders (False: the twin scene, the same physics and
+        noise draws with nothing drawn in front of the cloth)
+    known_occluders : rendered frames carry ``occluder_mask``, the exact mask of the drawn
+        occluders (all False where none is seen)
 
     After construction (and ``reset``) the world is at frame 0. ``step()`` advances one
     frame (1/30 s); ``render()`` returns the current frame as an RGBDFrame;
@@ -314,11 +722,13 @@ class ClothScene:
 
     def __init__(self, name: str, build: Callable[[np.random.Generator, CameraInfo], SceneSpec], seed: int = 0,
                  noise: bool = True, width: int = 640, height: int = 480,
-                 noise_model: DepthNoiseModel | None = None):
+                 noise_model: DepthNoiseModel | None = None, occluders: bool = True, known_occluders: bool = False):
         self.name = name
         self._build = build
         self.noise = bool(noise)
         self.noise_model = noise_model or DepthNoiseModel()
+        self.draw_occluders = bool(occluders)
+        self.known_occluders = bool(known_occluders)
         self.camera = kinect_camera(width, height)
         self.fps = FPS
         self.physics: ClothPhysics | None = None
@@ -345,23 +755,43 @@ class ClothScene:
         self._noise_rng = np.random.default_rng(noise_seq)
         self.close()
         spec = self.spec
+        n_grippers = len(spec.gripper_poses(0.0))
+        for event in spec.grasp_events:
+            if round(event.time_s * self.fps) < 1 or not 0 <= event.gripper < n_grippers:
+                raise ValueError(f"{self.name}: a grasp must come after frame 0 and name one of the {n_grippers} "
+                                 f"grippers, got {event}")
         self.physics = ClothPhysics(timestep_s=spec.timestep_s)
-        for box in spec.boxes:
-            self.physics.add_box(box.half_extents_m, box.position, box.quat_xyzw, box.rgba)
+        for scenery in spec.boxes:
+            self.physics.add_box(scenery.half_extents_m, scenery.position, scenery.quat_xyzw, scenery.rgba)
         self.cloth_id = self.physics.add_cloth(spec.cloth, spec.cloth_vertices_world, spec.material)
-        for vertex in spec.grasp_vertices:
-            at = spec.cloth_vertices_world[vertex]
-            gripper = self.physics.add_gripper(at)
-            gripper.close_on(self.physics.nodes_near(at, GRASP_RADIUS_M))
+        if spec.substeps != 1:
+            self.physics.set_timestep(spec.timestep_s / spec.substeps)
+        for i, (position, quat) in enumerate(spec.gripper_poses(0.0)):
+            if i < len(spec.grasp_vertices):
+                at = spec.cloth_vertices_world[spec.grasp_vertices[i]]
+                gripper = self.physics.add_gripper(at)
+                gripper.close_on(self.physics.nodes_near(at, GRASP_RADIUS_M))
+            else:
+                self.physics.add_gripper(position, quat)
         self.virtual_camera = VirtualCamera(self.camera, spec.T_world_cam, lighting=spec.lighting)
         self.physics.advance(spec.settle_s)
         self.frame_index = 0
-        self._last_mask = None
+        self._last_render = None
 
     @property
     def time_s(self) -> float:
         """Time of the current frame, seconds after frame 0."""
         return self.frame_index / self.fps
+
+    @property
+    def n_frames(self) -> int:
+        """Frames the scene's script is written for (60 for the paper's scenes)."""
+        return self.spec.n_frames
+
+    @property
+    def has_occluders(self) -> bool:
+        """Whether the script has occluders (drawn or, in a twin, left out)."""
+        return self.spec.occluders is not None
 
     @property
     def faces(self) -> np.ndarray:
@@ -374,12 +804,17 @@ class ClothScene:
         return self.spec.cloth.uv_m
 
     def step(self) -> None:
-        """Advance one frame period, grippers moving to the script's poses for the next frame."""
+        """Advance one frame period, grippers moving to the script's poses for the next frame;
+        grippers whose grasp falls on the next frame close on the cloth there."""
         t_next = (self.frame_index + 1) / self.fps
         for gripper, (position, quat) in zip(self.physics.grippers, self.spec.gripper_poses(t_next)):
             gripper.move_to(position, quat)
         self.physics.advance(1.0 / self.fps)
         self.frame_index += 1
+        for event in self.spec.grasp_events:
+            if round(event.time_s * self.fps) == self.frame_index:
+                at = self.physics.cloth_vertices()[event.vertex]
+                self.physics.grippers[event.gripper].close_on(self.physics.nodes_near(at, GRASP_RADIUS_M))
 
     def cloth_vertices_world(self) -> np.ndarray:
         """(V, 3) float64 cloth vertices now, metres, world frame."""
@@ -389,33 +824,54 @@ class ClothScene:
         """(V, 3) float64 cloth vertices now, metres, camera optical frame (the ground truth)."""
         return self.virtual_camera.world_to_camera(self.physics.cloth_vertices())
 
+    def occluder_mesh_world(self) -> SolidMesh | None:
+        """The occluders the script places now (world frame), drawn or not; None when there are none."""
+        return None if self.spec.occluders is None else self.spec.occluders(self.time_s)
+
+    def _rendered(self):
+        if self._last_render is None:
+            raise ValueError("nothing rendered yet (call render first)")
+        return self._last_render
+
     def cloth_mask(self) -> np.ndarray:
         """(H, W) bool, where the last ``render()`` saw the cloth (exact, before noise)."""
-        if self._last_mask is None:
-            raise ValueError("cloth_mask: nothing rendered yet (call render first)")
-        return self._last_mask
+        return self._rendered().body_ids == self.cloth_id
+
+    def occluder_mask(self) -> np.ndarray:
+        """(H, W) bool, where the last ``render()`` saw a drawn occluder (exact, before noise)."""
+        return self._rendered().body_ids == SOLID_ID
+
+    def exact_depth_m(self) -> np.ndarray:
+        """(H, W) float32 metres, the depth of the last ``render()`` before noise, 0 where nothing is seen."""
+        return self._rendered().depth_m
 
     def render(self) -> RGBDFrame:
         """The current frame as the sensor sees it (with noise if the scene has it)."""
-        image = self.virtual_camera.render(self.physics, self.spec.texture_rgb)
-        self._last_mask = image.body_ids == self.cloth_id
+        solids = self.occluder_mesh_world() if self.draw_occluders else None
+        image = self.virtual_camera.render(self.physics, self.spec.texture_rgb, solids=solids)
+        self._last_render = image
         rgb, depth = image.rgb, image.depth_m
         if self.noise:
             depth = add_depth_noise(depth, self.camera.K, self.noise_model, self._noise_rng)
             rgb = add_colour_noise(rgb, self.noise_model.colour_sigma, self._noise_rng)
-        return RGBDFrame(rgb=rgb, depth_m=depth, camera=self.camera, timestamp_s=self.time_s, seq=self.frame_index)
+        occluder_mask = self.occluder_mask() if self.known_occluders else None
+        return RGBDFrame(rgb=rgb, depth_m=depth, camera=self.camera, timestamp_s=self.time_s, seq=self.frame_index,
+                         occluder_mask=occluder_mask)
 
-    def frames(self, n: int):
-        """Yield ``n`` frames from the current one on (render, then step between frames)."""
-        for i in range(int(n)):
+    def frames(self, n: int | None = None):
+        """Yield ``n`` frames (default: the script's ``n_frames``) from the current one on
+        (render, then step between frames)."""
+        for i in range(self.n_frames if n is None else int(n)):
             if i:
                 self.step()
             yield self.render()
 
 
 def _factory(name: str, build: Callable[[np.random.Generator, CameraInfo], SceneSpec]):
-    def make(seed: int = 0, noise: bool = True, width: int = 640, height: int = 480) -> ClothScene:
-        return ClothScene(name, build, seed=seed, noise=noise, width=width, height=height)
+    def make(seed: int = 0, noise: bool = True, width: int = 640, height: int = 480, occluders: bool = True,
+             known_occluders: bool = False) -> ClothScene:
+        return ClothScene(name, build, seed=seed, noise=noise, width=width, height=height, occluders=occluders,
+                          known_occluders=known_occluders)
 
     make.__name__ = name
     make.__doc__ = f"The ``{name}`` scene, reset to frame 0. {build.__doc__.splitlines()[0]}"
@@ -426,17 +882,33 @@ poster_bend = _factory("poster_bend", poster_bend_spec)
 shirt_chair = _factory("shirt_chair", shirt_chair_spec)
 shirt_textureless_rotate = _factory("shirt_textureless_rotate", shirt_textureless_rotate_spec)
 towel_sway = _factory("towel_sway", towel_sway_spec)
+occluder_sweep = _factory("occluder_sweep", occluder_sweep_spec)
+gripper_corner_move = _factory("gripper_corner_move", gripper_corner_move_spec)
+table_lift = _factory("table_lift", table_lift_spec)
 
 SCENES: dict[str, Callable[..., ClothScene]] = {
     "poster_bend": poster_bend,
     "shirt_chair": shirt_chair,
     "shirt_textureless_rotate": shirt_textureless_rotate,
     "towel_sway": towel_sway,
+    "occluder_sweep": occluder_sweep,
+    "gripper_corner_move": gripper_corner_move,
+    "table_lift": table_lift,
 }
+#: The paper's experiments (``launch_scripts.evaluate``'s first table).
+PAPER_SCENES = ("poster_bend", "shirt_chair", "shirt_textureless_rotate", "towel_sway")
+#: A cloth handled, with an occluder drawn in front of it (the "Tracking while handled" table).
+HANDLED_SCENES = ("occluder_sweep", "gripper_corner_move", "table_lift")
 
 
-def make_scene(name: str, seed: int = 0, noise: bool = True, width: int = 640, height: int = 480) -> ClothScene:
-    """Build the registered scene ``name`` (see ``SCENES``), reset to frame 0."""
+def make_scene(name: str, seed: int = 0, noise: bool = True, width: int = 640, height: int = 480,
+               occluders: bool = True, known_occluders: bool = False) -> ClothScene:
+    """Build the registered scene ``name`` (see ``SCENES``), reset to frame 0.
+
+    occluders : draw the scene's occluders (False: its twin without them)
+    known_occluders : frames carry the exact occluder mask (``RGBDFrame.occluder_mask``)
+    """
     if name not in SCENES:
         raise ValueError(f"unknown scene {name!r}; expected one of {', '.join(sorted(SCENES))}")
-    return SCENES[name](seed=seed, noise=noise, width=width, height=height)
+    return SCENES[name](seed=seed, noise=noise, width=width, height=height, occluders=occluders,
+                        known_occluders=known_occluders)

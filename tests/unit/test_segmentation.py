@@ -62,16 +62,28 @@ def test_tracked_segmentation_cuts_off_the_hand_and_background():
     depth, truth, hand = scene_depth(hand=True)
     predicted = np.roll(truth | hand, 4, axis=1)  # last frame's mesh, a few pixels off
     predicted &= ~hand  # the mesh is the cloth only
-    mask = segment_tracked(depth, predicted, (1.25, 1.35), SegmentationConfig())
+    segment = segment_tracked(depth, predicted, (1.25, 1.35), SegmentationConfig())
+    mask = segment.mask
     assert iou(mask, truth) > 0.95
     # the hand (15 cm nearer, a depth jump) joins only as far as the search margin allows
     assert (mask & hand).sum() < 0.2 * hand.sum()
+    assert segment.leak < 0.1  # the prediction contains the cloth
+
+
+def test_tracked_segmentation_reports_a_surface_that_goes_on_beyond_the_search():
+    _, cloth, _ = scene_depth()
+    depth, _, _ = scene_depth(cloth=False)
+    depth = np.minimum(depth, 1.3).astype(np.float32)  # a wall where the cloth was
+    segment = segment_tracked(depth, cloth, (1.25, 1.35), SegmentationConfig())
+    assert segment.mask.sum() > 1.5 * cloth.sum() and segment.leak > 0.6
+    assert segment.unsearched[0, 0] and not segment.unsearched[cloth].any()
 
 
 def test_tracked_segmentation_empty_when_object_gone():
     depth, truth, _ = scene_depth(cloth=False)
     _, predicted, _ = scene_depth()
-    assert not segment_tracked(depth, predicted, (1.25, 1.35)).any()
+    segment = segment_tracked(depth, predicted, (1.25, 1.35))
+    assert not segment.mask.any() and segment.leak == 0.0
 
 
 def test_outline_skips_occluding_contour_and_image_border():

@@ -9,6 +9,10 @@ from sim.ground_truth import (
     bind_to_surface,
     closest_point_barycentric,
     error_summary,
+    face_areas,
+    hidden_behind_occluder,
+    material_point_tracks,
+    occluded_area_ratio,
     surface_points,
     vertex_errors,
 )
@@ -101,3 +105,62 @@ def test_inputs_are_checked():
         vertex_errors(np.zeros((4, 3)), np.zeros((2, len(verts), 3)), faces)
     with pytest.raises(ValueError, match="finite errors"):
         error_summary(np.array([np.nan]))
+
+
+K = np.array([[100.0, 0.0, 50.0], [0.0, 100.0, 40.0], [0.0, 0.0, 1.0]])
+
+
+def _occluder(depth_m=1.0):
+    """An 80x100 image with an occluder over columns 40-59 (every row) at ``depth_m``."""
+    mask = np.zeros((80, 100), bool)
+    mask[:, 40:60] = True
+    return mask, np.where(mask, depth_m, 0.0).astype(np.float32)
+
+
+def test_points_behind_an_occluder_are_hidden_and_only_those():
+    mask, depth = _occluder(1.0)
+    # columns: 30 (beside it), 45 and 59 (on it), 60 (just beside it); rows 40
+    x = (np.array([30.0, 45.0, 59.0, 60.0]) - 50.0) / 100.0
+    behind = np.column_stack([2.0 * x, np.zeros(4), np.full(4, 2.0)])
+    np.testing.assert_array_equal(hidden_behind_occluder(behind, mask, depth, K), [False, True, True, False])
+    in_front = behind * 0.4  # the same pixels at 0.8 m, nearer than the occluder
+    assert not hidden_behind_occluder(in_front, mask, depth, K).any()
+    outside = np.array([[5.0, 0.0, 1.5], [0.0, 0.0, -2.0]])  # off the image; behind the camera
+    assert not hidden_behind_occluder(outside, mask, depth, K).any()
+    assert hidden_behind_occluder(behind, mask, depth, K, margin_m=0.5).sum() == 2
+    assert not hidden_behind_occluder(behind, mask, depth, K, margin_m=1.5).any()
+    with pytest.raises(ValueError, match="one shape"):
+        hidden_behind_occluder(behind, mask, depth[:10], K)
+
+
+def test_face_areas_of_a_known_triangle():
+    v = np.array([[0.0, 0.0, 1.0], [0.3, 0.0, 1.0], [0.0, 0.2, 1.5]])
+    assert face_areas(v, np.array([[0, 1, 2]]))[0] == pytest.approx(0.5 * 0.3 * np.hypot(0.2, 0.5))
+
+
+def test_occluded_area_ratio_counts_fully_hidden_faces_only():
+    canonical, faces = _plane(0.6, 0.4, 0.1)
+    hidden = canonical[:, 0] <= 0.2 + 1e-9  # the left third, columns u = 0, 0.1, 0.2
+    squeezed = canonical.copy()
+    squeezed[hidden, 0] *= 0.5  # the hidden part squeezed to half its width
+    squeezed += [0.1, -0.2, 1.3]  # and the whole mesh moved
+    ratio, rest = occluded_area_ratio(squeezed, canonical, faces, hidden)
+    assert rest == pytest.approx(0.2 * 0.4) and ratio == pytest.approx(0.5)
+    # faces with a visible vertex do not count, even though the squeeze stretched them
+    ratio, _ = occluded_area_ratio(squeezed, canonical, faces, canonical[:, 0] <= 0.1 + 1e-9)
+    assert ratio == pytest.approx(0.5)
+    kept, _ = occluded_area_ratio(canonical @ np.diag([1.0, -1.0, -1.0]), canonical, faces, hidden)
+    assert kept == pytest.approx(1.0), "a turned mesh keeps its area"
+    ratio, rest = occluded_area_ratio(squeezed, canonical, faces, np.zeros(len(canonical), bool))
+    assert np.isnan(ratio) and rest == 0.0
+    with pytest.raises(ValueError, match="expected hidden of shape"):
+        occluded_area_ratio(squeezed, canonical, faces, hidden[:3])
+
+
+def test_material_point_tracks_follow_the_points_bound_in_the_first_frame():
+    verts, faces = _plane()
+    gt = np.stack([verts, verts + [0.0, 0.0, 0.1], verts * [1.5, 1.0, 1.0]])
+    first = verts[[0, 5]] + [0.0, 0.0, 0.02]  # 2 cm above two vertices
+    tracks = material_point_tracks(first, gt, faces)
+    np.testing.assert_allclose(tracks[:, 0], gt[:, 0], atol=1e-12)
+    np.testing.assert_allclose(tracks[2, 1], gt[2, 5], atol=1e-12)

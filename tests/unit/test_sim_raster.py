@@ -33,6 +33,16 @@ def test_fronto_parallel_sheet_depth_and_extent():
     assert np.all(r.rgb[r.mask] == 200)
 
 
+def test_a_sliver_between_pixel_centres_draws_nothing():
+    # pixels (u, v) at z = 1: a thin triangle along v = u + 0.25..0.3, which no pixel centre
+    # (integer u and v) lies in, though its bounding box holds many
+    uv = np.array([[10.3, 10.6], [20.3, 20.6], [20.35, 20.6]])
+    pts = np.c_[(uv - [39.5, 29.5]) / 70.0, np.ones(3)]
+    tex = np.full((8, 8, 3), 200, np.uint8)
+    r = rasterise_mesh(pts, np.array([[0, 1, 2]]), np.full((3, 2), 0.5), tex, CAM, LIGHT)
+    assert not r.mask.any() and not r.depth_m.any()
+
+
 def test_matches_the_reference_rasteriser():
     mesh, pts = _sheet(z=1.0, bend=1.5)
     rot = np.array([[np.cos(0.5), 0, np.sin(0.5)], [0, 1, 0], [-np.sin(0.5), 0, np.cos(0.5)]])

@@ -4,11 +4,13 @@ import subprocess
 import sys
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
 from perception.sequence import open_sequence
 from sim.record import main
+from sim.scenes import make_scene
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -37,8 +39,34 @@ def test_record_writes_a_readable_sequence_with_ground_truth(tmp_path, capsys):
     assert np.median(diff) < 0.01
 
 
+@pytest.mark.slow
+def test_record_writes_occluder_masks_named_as_the_depth_images_and_drops_frames(tmp_path):
+    pytest.importorskip("pybullet")
+    size = ["--width", "64", "--height", "48", "--seed", "2", "--quiet"]
+    assert main(["gripper_corner_move", str(tmp_path / "all"), "--frames", "5", *size]) == 0
+    assert main(["gripper_corner_move", str(tmp_path / "half"), "--frames", "5", "--frame-step", "2", *size]) == 0
+    with make_scene("gripper_corner_move", seed=2, width=64, height=48) as scene:
+        expected = []
+        for _ in scene.frames(5):
+            expected.append(scene.occluder_mask())
+    assert any(m.any() for m in expected), "the gripper is in view"
+    for name, step in (("all", 1), ("half", 2)):
+        seq = open_sequence(tmp_path / name)
+        np.testing.assert_allclose(seq.timestamps, np.arange(0, 5, step) / 30, atol=1e-6)
+        assert seq.groundtruth["vertices"].shape[0] == len(seq)
+        folder = tmp_path / name / "occluder_masks"
+        assert sorted(p.name for p in folder.iterdir()) == sorted(p.name for p in seq.depth_files)
+        for k, depth_file in enumerate(seq.depth_files):
+            png = cv2.imread(str(folder / depth_file.name), cv2.IMREAD_UNCHANGED)
+            assert png.dtype == np.uint8 and set(np.unique(png)) <= {0, 255}
+            np.testing.assert_array_equal(png > 0, expected[k * step])
+    assert not (tmp_path / "none").exists()
+    assert main(["poster_bend", str(tmp_path / "none"), "--frames", "1", *size]) == 0
+    assert not (tmp_path / "none" / "occluder_masks").exists(), "a scene without occluders gets no masks"
+
+
 @pytest.mark.parametrize("args, message", [
-    (["sofa", "OUT"], "unknown scene 'sofa'; expected one of poster_bend"),
+    (["sofa", "OUT"], "unknown scene 'sofa'; expected one of gripper_corner_move, occluder_sweep, poster_bend"),
     (["poster_bend", "OUT", "--frames", "0"], "argument --frames: expected a positive integer, got 0"),
     (["poster_bend", "OUT", "--seed", "x"], "argument --seed: expected a non-negative integer, got 'x'"),
     (["poster_bend", "OUT", "--width", "8"], "image size must be at least 16x16, got 8x480"),
@@ -59,7 +87,8 @@ def test_bad_argument_from_the_shell_has_no_traceback(tmp_path):
                             capture_output=True, text=True, timeout=120, check=False)
     assert result.returncode == 2
     assert result.stderr.strip() == ("python -m sim.record: error: unknown scene 'sofa'; expected one of "
-                                     "poster_bend, shirt_chair, shirt_textureless_rotate, towel_sway")
+                                     "gripper_corner_move, occluder_sweep, poster_bend, shirt_chair, "
+                                     "shirt_textureless_rotate, table_lift, towel_sway")
 
 
 def test_refuses_a_non_empty_output_folder(tmp_path):

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from sim.cloth_mesh import edge_strain
-from sim.scenes import SCENES, make_scene
+from sim.scenes import PAPER_SCENES, SCENES, make_scene
 
 pytest.importorskip("pybullet")
 
@@ -16,8 +16,10 @@ def _frames(scene, n):
 
 
 def test_registry_and_unknown_names():
-    assert sorted(SCENES) == ["poster_bend", "shirt_chair", "shirt_textureless_rotate", "towel_sway"]
-    with pytest.raises(ValueError, match="unknown scene 'sofa'; expected one of poster_bend, shirt_chair"):
+    assert sorted(SCENES) == ["gripper_corner_move", "occluder_sweep", "poster_bend", "shirt_chair",
+                              "shirt_textureless_rotate", "table_lift", "towel_sway"]
+    assert PAPER_SCENES == ("poster_bend", "shirt_chair", "shirt_textureless_rotate", "towel_sway")
+    with pytest.raises(ValueError, match="unknown scene 'sofa'; expected one of gripper_corner_move, occluder_sweep"):
         make_scene("sofa")
 
 
@@ -79,7 +81,7 @@ def _facing(scene):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", sorted(SCENES))
+@pytest.mark.parametrize("name", PAPER_SCENES)
 def test_scene_runs_60_frames_stably_and_as_described(name):
     with make_scene(name, seed=2, noise=False, width=W, height=H) as scene:
         mesh = scene.spec.cloth

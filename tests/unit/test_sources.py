@@ -179,6 +179,24 @@ def test_sim_source_renders_frames_at_30_hz_and_replays_a_pass():
         SimSource("poster_bend", n_frames=0)
 
 
+@pytest.mark.slow
+def test_sim_source_sends_the_known_occluder_mask_when_asked():
+    pytest.importorskip("pybullet")
+    from launch_scripts.publish_frames import build_parser, open_source
+
+    common = ["sim", "--scene", "gripper_corner_move", "--seed", "2", "--width", "64", "--height", "48"]
+    with open_source(build_parser().parse_args([*common, "--known-occluders"])) as src:
+        assert src.n_frames == src.script_frames >= 60
+        frame = next(src.frames())
+        assert frame.occluder_mask.shape == (48, 64) and frame.occluder_mask.any()
+    with open_source(build_parser().parse_args([*common, "--known-occluders", "--no-occluders"])) as twin:
+        clear = next(twin.frames())
+        assert not clear.occluder_mask.any()
+        assert np.any(clear.rgb[frame.occluder_mask] != frame.rgb[frame.occluder_mask])
+    with open_source(build_parser().parse_args(common)) as plain:
+        assert next(plain.frames()).occluder_mask is None
+
+
 # -- optional SDKs ---------------------------------------------------------------------------
 
 

@@ -128,3 +128,41 @@ def test_default_mesh_resolution_follows_the_object_size(tex):
         counts[name] = len(MeshTracker(TrackerConfig(target_vertices=300)).initialise(frame).vertices)
     assert 200 < counts["strip"] < 400 and 200 < counts["sheet"] < 400, counts
     assert len(MeshTracker(TrackerConfig(spacing_m=0.03)).initialise(strip).vertices) < 30
+
+
+def sheet_before_a_wall(shift, sheet_tex, wall_tex, k):
+    """The sheet 1.3 m away in front of a wall 1.6 m away that has a texture of its own."""
+    from ipc.messages import RGBDFrame
+    from tests.render import render
+
+    front = frame_of(plane_points(UV, CENTRE + shift, SIZE), UV, FACES, sheet_tex, CAM, SIZE, t=k / 30, seq=k,
+                     noise_m=0.002, rng=np.random.default_rng(100 + k), background_m=None)
+    wall_uv, wall_faces = grid_surface(2.0, 1.6, 11, 9)
+    rgb, depth = render(plane_points(wall_uv, np.array([0.0, 0.0, 1.6]), (2.0, 1.6)), wall_uv, wall_faces, wall_tex,
+                        CAM, (2.0, 1.6), background_m=None)
+    on = front.depth_m > 0
+    return RGBDFrame(np.where(on[..., None], front.rgb, rgb), np.where(on, front.depth_m, depth).astype(np.float32),
+                     CAM, k / 30, k)
+
+
+@pytest.mark.parametrize("textured", [True, False])
+def test_an_estimate_pushed_onto_the_wrong_surface_is_flagged_and_the_sheet_found_again(tex, textured):
+    """The estimate is moved onto the wall behind the sheet (as a bad frame could leave it):
+    the tracker says it is lost and, within three frames, is back on the sheet by itself."""
+    sheet_tex = tex if textured else texture(np.random.default_rng(0), textured=False)
+    wall_tex = texture(np.random.default_rng(9), textured=textured)
+    if not textured:
+        wall_tex[:] = (90, 110, 160)  # a plain wall of another colour
+    tracker = MeshTracker(TrackerConfig(features="klt"))
+    e0 = tracker.initialise(sheet_before_a_wall(np.zeros(3), sheet_tex, wall_tex, 0))
+    tracker._V = tracker._V * (1.6 / 1.3) + np.array([0.35, 0.1, 0.0])  # on the wall, beside the sheet
+    tracker._V_prev = tracker._V.copy()
+    history = []
+    for k in range(1, 5):
+        e = tracker.track(sheet_before_a_wall(np.zeros(3), sheet_tex, wall_tex, k))
+        err = np.linalg.norm(e.vertices - e0.vertices, axis=1)
+        history.append((err.mean(), e.confidence, e.lost))
+        assert err.mean() < 0.01 or e.lost, f"frame {k}: {err.mean() * 1000:.0f} mm off with confidence {e.confidence:.2f}"
+    back = [k for k, (err, _, lost) in enumerate(history) if err < 0.01 and not lost]
+    assert back and back[0] <= 2, history
+    assert tracker.reacquisitions >= 1

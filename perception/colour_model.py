@@ -1,0 +1,62 @@
+"""Telling the cloth from what surrounds it by colour, where depth cannot.
+
+A cloth lying on a table, or held against a shirt, is continuous in depth with what is
+under or behind it, so depth segmentation grows into the table. Their colours usually
+differ. From the first frame the tracker knows both: the object's pixels (its mask) and
+the surroundings' (a ring around the mask). ``ColourModel`` keeps a colour histogram of
+each (CIE Lab, quantised) and gives each pixel the probability that it is the object.
+Where the two histograms barely differ (a grey cloth on a grey table) the model says it
+cannot tell (``informative`` False) and the tracker segments by depth alone.
+
+Images are (H, W, 3) uint8 RGB; masks (H, W) bool; probabilities (H, W) float32 in [0, 1].
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+from scipy.ndimage import gaussian_filter
+
+#: bins of L, a and b: brightness more coarsely (shading changes it) than chroma (cloth and
+#: table are often both near grey, a few units of a and b apart)
+BINS = (8, 32, 32)
+#: Bhattacharyya distance between the two histograms above which colour separates them
+MIN_SEPARATION = 0.35
+
+
+def _bin_index(rgb: np.ndarray) -> np.ndarray:
+    """(h, w) int: each pixel's bin in the quantised Lab histogram."""
+    lab = cv2.cvtColor(np.ascontiguousarray(rgb), cv2.COLOR_RGB2LAB)
+    idx = [(lab[..., c].astype(np.int32) * n) >> 8 for c, n in enumerate(BINS)]
+    return (idx[0] * BINS[1] + idx[1]) * BINS[2] + idx[2]
+
+
+class ColourModel:
+    """Colour histograms of an object and of its surroundings in one frame.
+
+    rgb : (H, W, 3) uint8; mask : (H, W) bool, the object; ring_px : width of the ring
+    around the mask that stands for the surroundings
+    """
+
+    def __init__(self, rgb: np.ndarray, mask: np.ndarray, ring_px: int = 40):
+        n = int(np.prod(BINS))
+        bins = _bin_index(rgb)
+        ring = cv2.dilate(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1,) * 2))
+        ring = ring.astype(bool) & ~mask
+        obj = np.bincount(bins[mask], minlength=n).astype(np.float64)
+        bg = np.bincount(bins[ring], minlength=n).astype(np.float64)
+        obj /= max(obj.sum(), 1.0)
+        bg /= max(bg.sum(), 1.0)
+        self.separation = float(np.sqrt(max(0.0, 1.0 - np.sum(np.sqrt(obj * bg)))))  # Bhattacharyya (Hellinger) distance
+        self.informative = bool(ring.any() and self.separation >= MIN_SEPARATION)
+        # Spread each histogram over neighbouring bins (a little shading or noise moves a colour
+        # by a bin); a colour the object never showed counts as not the object.
+        obj = gaussian_filter(obj.reshape(BINS), 1.0, mode="nearest").ravel()
+        bg = gaussian_filter(bg.reshape(BINS), 1.0, mode="nearest").ravel()
+        self._table = ((obj + 1e-6) / (obj + bg + 1e-4)).astype(np.float32)
+
+    def probability(self, rgb: np.ndarray) -> np.ndarray:
+        """(h, w) float32: probability that each pixel of ``rgb`` (h, w, 3) is the object,
+        smoothed over a few pixels (sensor noise flips single pixels' bins)."""
+        p = self._table[_bin_index(rgb)]
+        return cv2.blur(p, (5, 5))
