@@ -32,9 +32,9 @@ class Segment:
     mask : (H, W) bool, the object
     unsearched : (H, W) bool, the pixels beyond the search margin: the mask stops there
         because the search did, so its outline there is not the object's edge
-    leak : in [0, 1], the fraction of the mask's own outline that runs along the unsearched
-        pixels (near 0 when the object lies within the search; high when it is continuous
-        with a surface that goes on, such as a table the cloth lies on)
+    leak : in [0, 1], the fraction of the mask's edge that runs along the unsearched pixels
+        (near 0 when the object lies within the search; high when it is continuous with a
+        surface that goes on, such as a table the cloth lies on)
     """
 
     mask: np.ndarray
@@ -109,9 +109,10 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
         or None. A region in the search margin next to them joins even without overlapping
         the prediction: a hidden part comes out from behind its occluder a little away from
         where the motion prior carried it.
-    rgb : (H, W, 3) uint8 and colour : the object's ColourModel, or None. Where colour tells
-        the object from its surroundings, pixels that look like the surroundings are left out
-        (a cloth on a table is continuous in depth with the table): outside the prediction
+    rgb : (H, W, 3) uint8 and colour : the object's ColourModel, or None. When the object
+        found by depth runs on beyond the search (a cloth on a table is continuous in depth
+        with the table) and colour tells the object from its surroundings, pixels that look
+        like the surroundings are left out: outside the prediction
         unless they are more likely the object than not, inside it only in areas wider than
         a print's patches where they are clearly not.
     returns Segment; its mask is empty when nothing of the object is seen
@@ -132,29 +133,40 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
     unsearched[y0:y1, x0:x1] = ~search
     d = np.where(valid, depth, 0.0)
     candidate = valid & search & (d > z_range[0] - cfg.depth_band_m) & (d < z_range[1] + cfg.depth_band_m)
-    if colour is not None and rgb is not None and colour.informative:
+    region, leak = _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg)
+    if leak > 0.1 and colour is not None and rgb is not None and colour.informative:
+        # Depth runs on beyond the search: the object lies on something of its own depth
+        # (a table). Colour may tell them apart.
         p = colour.probability(rgb[y0:y1, x0:x1])
         # Inside the prediction only wide areas of the surroundings' colour go (where the
         # cloth was before it moved), not a print's patches of a similar colour.
         unlike = cv2.morphologyEx((pred & (p < 0.15)).astype(np.uint8), cv2.MORPH_OPEN, np.ones((15, 15), np.uint8))
         candidate &= (p >= 0.5) | (pred & ~unlike.astype(bool))
+        region, leak = _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg)
+    out[y0:y1, x0:x1] = region
+    return Segment(out, unsearched, leak)
+
+
+def _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg):
+    """The regions of ``candidate`` (box-sized bool) that belong to the object, and the
+    fraction of their edge on the search's rim (``Segment.leak``); box-sized arrays."""
     n, labels, stats = _regions(candidate, depth, cfg)
     if n <= 1:
-        return Segment(out, unsearched)
+        return np.zeros_like(candidate), 0.0
     overlap = np.bincount(labels[pred], minlength=n)
     area = stats[:, cv2.CC_STAT_AREA]
     # A region belongs to the object when a real part of it lies where the mesh was predicted.
     keep = (overlap >= np.maximum(cfg.min_region_px // 3, 0.2 * area)) & (area >= cfg.min_region_px)
     if hidden_mask is not None:
-        near_hidden = cv2.dilate(hidden_mask[y0:y1, x0:x1].astype(np.uint8),
+        h, w = candidate.shape
+        near_hidden = cv2.dilate(hidden_mask[y0:y0 + h, x0:x0 + w].astype(np.uint8),
                                  cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * cfg.search_margin_px + 1,) * 2)) > 0
         keep |= (np.bincount(labels[near_hidden], minlength=n) >= cfg.min_region_px // 3) & (area >= cfg.min_region_px)
     keep[0] = False
     region = _grow(keep[labels], candidate)
-    out[y0:y1, x0:x1] = region
-    edge = outline(region, depth)
-    along = edge & (cv2.dilate((~search).astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
-    return Segment(out, unsearched, float(along.sum() / max(1, edge.sum())))
+    edge = region & ~cv2.erode(region.astype(np.uint8), np.ones((3, 3), np.uint8), borderType=cv2.BORDER_REPLICATE).astype(bool)
+    along = edge & (dist >= cfg.search_margin_px - 1.5)
+    return region, float(along.sum() / max(1, edge.sum()))
 
 
 def find_by_colour(depth_m: np.ndarray, rgb: np.ndarray, colour: ColourModel,
