@@ -637,7 +637,7 @@ class MeshTracker:
         K = frame.camera.K
         likeness = self._appearance.likeness(frame.rgb, V, self.mesh.faces, K, visible) \
             if self._appearance is not None else 1.0
-        assessment = assess(V, self.mesh.faces, self._edges, self.mesh.spacing_m, visible, frame.depth_m, object_mask,
+        assessment = assess(V, self._edges, self.mesh.spacing_m, visible, frame.depth_m, object_mask,
                             K, self.config.confidence_tol_m, likeness, leak)
         self.last_assessment = assessment
         return assessment
