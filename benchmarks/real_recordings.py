@@ -39,7 +39,7 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from perception.camera import pixel_index, project  # noqa: E402
+from perception.geometry import pixel_index, project  # noqa: E402
 from perception.overlay import draw_mesh, outlined_text  # noqa: E402
 from perception.raster import bounding_box  # noqa: E402
 from perception.recording_scores import flow_score, mask_coverage, vertices_on_mask  # noqa: E402

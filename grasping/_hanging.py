@@ -26,9 +26,15 @@ import logging
 import numpy as np
 from scipy.spatial import cKDTree
 
-from grasping._checks import check_points, check_positive, check_transform, check_vector
-from grasping._geometry import gripper_matrices, quaternion_xyzw_from_matrix
 from ipc.messages import GraspPlan
+from perception.geometry import (
+    check_points,
+    check_positive,
+    check_transform,
+    check_vector,
+    frames_from_z_and_x,
+    quaternion_xyzw_from_matrix,
+)
 
 log = logging.getLogger(__name__)
 
@@ -105,7 +111,7 @@ def lowest_point_grasp(points_cam, T_world_cam, up_world=(0.0, 0.0, 1.0), min_ne
         closing = np.array([1.0, 0.0, 0.0]) - up_cam[0] * up_cam
     closing = closing / np.linalg.norm(closing)
 
-    R = gripper_matrices(up_cam[None], closing[None])
+    R = frames_from_z_and_x(up_cam[None], closing[None])
     log.debug("lowest point of %d cloth points at %s (camera frame)", len(points), np.round(tip, 3).tolist())
     return GraspPlan(position=tip + inset_m * up_cam, approach=R[0][:, 2], quat_xyzw=quaternion_xyzw_from_matrix(R)[0],
                      opening_width_m=opening_width_m, score=1.0, vertex_id=-1, kind="corner", frame_id=frame_id,

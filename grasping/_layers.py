@@ -18,9 +18,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from grasping._geometry import project_points
 from ipc.messages import RGBDFrame
-from perception.camera import backproject
+from perception.geometry import backproject, project
 
 
 def step_above_beyond(points_cam: np.ndarray, outward_cam: np.ndarray, up_cam: np.ndarray, frame: RGBDFrame,
@@ -56,7 +55,7 @@ def step_above_beyond(points_cam: np.ndarray, outward_cam: np.ndarray, up_cam: n
         along = sign * np.arange(near, far + 1e-12, sample_m)
         a, b = np.meshgrid(along, across, indexing="ij")
         samples = points[k] + a.reshape(-1, 1) * outward[k] + b.reshape(-1, 1) * lateral[k]
-        uv = project_points(samples, frame.camera)
+        uv = project(samples, frame.camera.K, frame.camera.D)
         uv = uv[np.all(np.isfinite(uv), axis=1)]
         px = np.unique(np.rint(uv).astype(np.int64), axis=0)
         px = px[(px[:, 0] >= 0) & (px[:, 0] < width) & (px[:, 1] >= 0) & (px[:, 1] < height)]

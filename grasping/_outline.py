@@ -24,7 +24,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import coo_matrix, csr_matrix, vstack
 
-from grasping._checks import check_ids, check_points
+from perception.geometry import (
+    boundary_half_edges,
+    check_ids,
+    check_points,
+    unique_edges,
+)
 
 log = logging.getLogger(__name__)
 
@@ -160,26 +165,6 @@ def _flatten(canonical: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return pts
 
 
-def _edge_keys(edges: np.ndarray, n: int) -> np.ndarray:
-    """(E,) int64 key of each undirected edge (E, 2), equal for (u, v) and (v, u)."""
-    return np.minimum(edges[:, 0], edges[:, 1]) * n + np.maximum(edges[:, 0], edges[:, 1])
-
-
-def _directed_edges(faces: np.ndarray) -> np.ndarray:
-    """(3M, 2) int64 edges of every face, in the face's winding."""
-    return np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-
-
-def _boundary_half_edges(faces: np.ndarray, n: int) -> np.ndarray:
-    """(E, 2) int64 directed edges used by exactly one face, in that face's winding.
-
-    With counter-clockwise faces the cloth lies to the left of each such edge.
-    """
-    directed = _directed_edges(faces)
-    _, inverse, counts = np.unique(_edge_keys(directed, n), return_inverse=True, return_counts=True)
-    return directed[counts[inverse] == 1]
-
-
 def _trace_loops(half_edges: np.ndarray, pts: np.ndarray) -> list[np.ndarray]:
     """Chain boundary half-edges into closed loops of vertex ids.
 
@@ -307,15 +292,13 @@ def build_outline(
         raise ValueError(f"Expected window_spacings > 0, got {window_spacings}")
 
     pts = _flatten(canonical, faces)
-    directed = _directed_edges(faces)
-    _, first = np.unique(_edge_keys(directed, n), return_index=True)
-    edges = directed[first]
+    edges = unique_edges(faces)
     spacing = float(np.median(np.linalg.norm(pts[edges[:, 0]] - pts[edges[:, 1]], axis=1)))
     window = window_spacings * spacing
 
     # Holes (loops turning clockwise) are left out: grasping the rim of a hole is
     # not a corner or edge grasp of the cloth.
-    loops = [lp for lp in _trace_loops(_boundary_half_edges(faces, n), pts) if _shoelace(pts[lp]) > 0]
+    loops = [lp for lp in _trace_loops(boundary_half_edges(faces), pts) if _shoelace(pts[lp]) > 0]
     if not loops:
         raise ValueError("Expected the faces to have an outer boundary loop, found none")
     in_boundary = np.zeros(n, bool)

@@ -23,11 +23,26 @@ from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from grasping._checks import check_positive, check_transform, check_vector
-from grasping._geometry import depth_agrees, gripper_matrices, project_points, quaternion_xyzw_from_matrix, vertex_normals
 from grasping._layers import step_above_beyond
-from grasping._outline import DEFAULT_CORNER_MAX_ANGLE_RAD, DEFAULT_WINDOW_SPACINGS, Outline, build_outline
+from grasping._outline import (
+    DEFAULT_CORNER_MAX_ANGLE_RAD,
+    DEFAULT_WINDOW_SPACINGS,
+    Outline,
+    build_outline,
+)
+from grasping._visibility import depth_agrees
 from ipc.messages import GraspPlan, MeshEstimate, RGBDFrame
+from perception.geometry import (
+    check_positive,
+    check_transform,
+    check_vector,
+    directed_edges,
+    frames_from_z_and_x,
+    project,
+    quaternion_xyzw_from_matrix,
+    transform_points,
+    vertex_normals,
+)
 
 log = logging.getLogger(__name__)
 
@@ -244,7 +259,7 @@ def _build_model(estimate: MeshEstimate, config: GraspPlannerConfig, with_outlin
     """Precompute what depends on the canonical mesh only; the outline only if asked."""
     faces = estimate.faces.astype(np.int64)
     n = len(estimate.canonical)
-    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    edges = directed_edges(faces)
     lengths = np.linalg.norm(estimate.canonical[edges[:, 0]] - estimate.canonical[edges[:, 1]], axis=1)
     # COO -> CSR sums repeated entries, and a directed edge repeats where two faces
     # disagree in winding; keep each once so its weight stays its length.
@@ -315,7 +330,7 @@ def _candidates(
     vertices lie inside the workspace.
     """
     V = estimate.vertices
-    normals, has_normal = _unit(vertex_normals(V, estimate.faces))
+    normals, has_normal = _unit(vertex_normals(V, estimate.faces, unit=False))
     # Orient normals toward the camera (the origin of the camera frame): that is
     # the side the gripper can come from and the side the fingers close onto.
     toward_cam = np.where(np.sum(normals * -V, axis=1, keepdims=True) < 0, -normals, normals)
@@ -362,8 +377,7 @@ def _candidates(
 
 def _inside_workspace(points_cam: np.ndarray, config: GraspPlannerConfig) -> np.ndarray:
     """(K,) bool: camera-frame points (K, 3), metres, inside the workspace box (world frame)."""
-    T = config.T_world_cam
-    points_world = points_cam @ T[:3, :3].T + T[:3, 3]
+    points_world = transform_points(config.T_world_cam, points_cam)
     return np.all((points_world >= config.workspace_min_world) & (points_world <= config.workspace_max_world), axis=1)
 
 
@@ -439,7 +453,7 @@ def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerCo
     visibility, single_layer, step = None, None, np.full(len(vid), np.nan)
     if frame is not None:
         points = estimate.vertices[vid]
-        uv = project_points(points, frame.camera)
+        uv = project(points, frame.camera.K, frame.camera.D)
         visibility = depth_agrees(points, frame.depth_m, uv, config.visibility_tol_m, config.visibility_window_px).astype(np.float64)
         score = score + config.weight_visibility * visibility
         total_weight += config.weight_visibility
@@ -459,7 +473,7 @@ def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerCo
     if not order:
         return none_left(rejected)
 
-    R = gripper_matrices(approach, closing)
+    R = frames_from_z_and_x(approach, closing)
     quats = quaternion_xyzw_from_matrix(R)
     plans, terms = [], []
     for k in order:

@@ -34,7 +34,13 @@ import numpy as np
 from grasping._planner import EDGE_APPROACHES, MODES, GraspPlannerConfig
 from grasping.service import PlannerService, run_planner_service
 from ipc import endpoints
-from launch_scripts.cli import OneLineParser, add_security_arguments, curve_keys_from_args, finite_float, stop_on_signals
+from launch_scripts.cli import (
+    OneLineParser,
+    add_security_arguments,
+    curve_keys_from_args,
+    finite_float,
+    stop_on_signals,
+)
 
 log = logging.getLogger("launch_scripts.planner_service")
 

@@ -3,9 +3,25 @@
 Public API::
 
     from perception import MeshTracker, TrackerConfig, rectangle_mesh
+
+The names are loaded on first use, so that ``perception.geometry`` (the geometry every
+package shares) can be imported without the tracker and its dependencies.
 """
 
-from perception.mesh import CanonicalMesh, rectangle_mesh
-from perception.tracker import MeshTracker, TrackerConfig, TrackingError
+import importlib
 
-__all__ = ["CanonicalMesh", "MeshTracker", "TrackerConfig", "TrackingError", "rectangle_mesh"]
+_PUBLIC = {
+    "CanonicalMesh": "perception.mesh",
+    "rectangle_mesh": "perception.mesh",
+    "MeshTracker": "perception.tracker",
+    "TrackerConfig": "perception.tracker",
+    "TrackingError": "perception.tracker",
+}
+
+__all__ = sorted(_PUBLIC)
+
+
+def __getattr__(name: str):
+    if name not in _PUBLIC:
+        raise AttributeError(f"module 'perception' has no attribute {name!r}")
+    return getattr(importlib.import_module(_PUBLIC[name]), name)

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 import scipy.sparse as sp
 
-from perception.camera import project
+from perception.geometry import project
 
 MIN_BLUR_PX = 1.5
 #: grey-level spread (standard deviation) above which a surface counts as textured

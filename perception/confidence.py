@@ -33,7 +33,7 @@ from dataclasses import asdict, dataclass
 import cv2
 import numpy as np
 
-from perception.camera import pixel_index, project
+from perception.geometry import pixel_index, project
 
 #: cue value below which an estimate is lost whatever the others say
 FLOOR = 0.25

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from perception.camera import rays
+from perception.geometry import rays
 
 
 class CPDTracker:

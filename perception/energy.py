@@ -30,7 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
-from perception.camera import pixel_index, project
+from perception.geometry import pixel_index, project
 
 
 @dataclass

@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from perception.camera import pixel_index, project
+from perception.geometry import pixel_index, project
 from perception.raster import bounding_box, locate_pixels
 from perception.visibility import FACE_OUT_OF_VIEW, FACE_VISIBLE
 

@@ -25,7 +25,7 @@ import math
 import numpy as np
 
 from ipc.messages import CameraInfo, RGBDFrame
-from perception.camera import backproject
+from perception.geometry import backproject
 from perception.initial_mesh import object_frame
 from perception.mesh import SQRT3_2
 

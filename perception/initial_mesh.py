@@ -12,7 +12,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from perception.camera import pixel_index, project, rays
+from perception.geometry import pixel_index, project, rays
 from perception.mesh import CanonicalMesh, lattice_covering, lattice_to_xy, mesh_from_lattice
 from perception.observation import Observation
 

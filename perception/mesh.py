@@ -19,6 +19,8 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
+from perception.geometry import unique_edges
+
 SQRT3_2 = math.sqrt(3.0) / 2.0
 _DIRECTIONS = np.array([[1, 0], [0, 1], [-1, 1]])  # lattice steps a, b, b - a
 
@@ -57,7 +59,7 @@ class CanonicalMesh:
 
     def edges(self) -> np.ndarray:
         """(E, 2) int32 unique undirected edges, i < j."""
-        return unique_edges(self.faces)
+        return unique_edges(self.faces).astype(np.int32)
 
     def k_col(self) -> sp.csr_matrix:
         """(E, N) sparse second-difference matrix, rows (1, -2, 1) on each triplet (paper eq. 9)."""
@@ -176,14 +178,6 @@ def rectangle_mesh(width_m: float, height_m: float, spacing_m: float) -> Canonic
     eps = 1e-9 * spacing_m
     inside = (xy[:, 0] >= -eps) & (xy[:, 0] <= width_m + eps) & (xy[:, 1] >= -eps) & (xy[:, 1] <= height_m + eps)
     return mesh_from_lattice(lat[inside], spacing_m)
-
-
-def unique_edges(faces: np.ndarray) -> np.ndarray:
-    """(M, 3) faces to (E, 2) int32 unique undirected edges with i < j."""
-    f = np.asarray(faces)
-    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    e = np.sort(e, axis=1)
-    return np.unique(e, axis=0).astype(np.int32)
 
 
 def second_difference_matrix(triplets: np.ndarray, n_vertices: int) -> sp.csr_matrix:

@@ -9,13 +9,12 @@ lifted to 3D for the boundary term.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
 
 import cv2
 import numpy as np
 
 from ipc.messages import RGBDFrame
-from perception.camera import backproject, pixel_index, rays
+from perception.geometry import backproject, pixel_index, ray_lengths, rays
 from perception.raster import bounding_box
 from perception.segmentation import outline, valid_depth
 
@@ -72,13 +71,6 @@ def smooth_depth_in_mask(depth_m: np.ndarray, mask: np.ndarray, window_px: int) 
     return out
 
 
-@lru_cache(maxsize=4)
-def _ray_norms(fx: float, fy: float, cx: float, cy: float, w: int, h: int) -> np.ndarray:
-    """(H, W) float32 length of the z = 1 ray through each pixel (range = depth * this)."""
-    uu, vv = np.meshgrid(np.arange(w), np.arange(h))
-    return np.sqrt(((uu - cx) / fx) ** 2 + ((vv - cy) / fy) ** 2 + 1.0).astype(np.float32)
-
-
 def grey_of(frame: RGBDFrame) -> np.ndarray:
     """(H, W) uint8 grey image of the frame's colour."""
     return cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2GRAY)
@@ -94,7 +86,7 @@ def observe(frame: RGBDFrame, mask: np.ndarray, window_px: int = 5, occlusion_ma
     grey = grey_of(frame) if grey is None else grey
     depth = smooth_depth_in_mask(frame.depth_m, mask, window_px)
     h, w = depth.shape
-    rng = depth * _ray_norms(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), w, h)
+    rng = depth * ray_lengths(K, w, h)
     box = bounding_box(mask, pad=1)  # the outline lies in the mask's box (plus one pixel for neighbours)
     if box is not None:
         y0, y1, x0, x1 = box

@@ -9,8 +9,7 @@ import cv2
 import numpy as np
 
 from ipc.messages import MeshEstimate
-from perception.camera import project
-from perception.mesh import unique_edges
+from perception.geometry import project, unique_edges
 
 
 def draw_mesh(rgb: np.ndarray, estimate: MeshEstimate, K: np.ndarray, thickness: int = 1) -> np.ndarray:

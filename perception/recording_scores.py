@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from perception.camera import pixel_index, project
+from perception.geometry import pixel_index, project
 from perception.raster import faces_mask
 
 

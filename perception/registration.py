@@ -22,8 +22,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from perception.camera import backproject, pixel_index
 from perception.features import BoundFeatures, Detector, bind
+from perception.geometry import backproject, pixel_index
 
 log = logging.getLogger(__name__)
 

@@ -29,20 +29,20 @@ import numpy as np
 from threadpoolctl import ThreadpoolController
 
 from ipc.messages import MeshEstimate, RGBDFrame
-from perception.camera import Undistorter, pixel_index, project, rays
+from perception.appearance import AppearanceModel
+from perception.coarse import MIN_RESPONSE, FrameMemory
+from perception.colour_model import ColourModel
 from perception.confidence import Assessment, assess
 from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, MotionPriorTerm
 from perception.features import make_correspondences, resolve_kind
+from perception.geometry import Undistorter, pixel_index, project, rays
 from perception.initial_mesh import InitialisationError, mesh_from_mask, place_mesh, spacing_for
-from perception.appearance import AppearanceModel
-from perception.colour_model import ColourModel
-from perception.coarse import MIN_RESPONSE, FrameMemory
 from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
 from perception.raster import faces_mask
+from perception.registration import GlobalRegistration
 from perception.segmentation import SegmentationConfig, find_by_colour, find_object, segment_tracked
 from perception.solver import SemiImplicitSolver
-from perception.registration import GlobalRegistration
 from perception.visibility import NO_DEPTH, OCCLUDED, VISIBLE, classify_vertices, face_states
 
 log = logging.getLogger(__name__)

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from perception.camera import pixel_index, project
+from perception.geometry import pixel_index, project
 
 VISIBLE, OCCLUDED, OUT_OF_VIEW, NO_DEPTH = 0, 1, 2, 3
 STATES = ("visible", "occluded", "out_of_view", "no_depth")

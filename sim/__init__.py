@@ -17,18 +17,10 @@ PyBullet is imported only when a ``ClothPhysics`` is created, so the pure parts
 """
 
 from sim.camera import Lighting, Render, VirtualCamera
-from sim.camera_model import (
-    camera_info_from_fov,
-    look_at,
-    projection_matrix,
-    view_matrix,
-)
 from sim.cloth_mesh import (
     ClothMesh,
     TShirtShape,
-    boundary_vertices,
     edge_strain,
-    mesh_edges,
     rectangle_mesh,
     tshirt_mesh,
 )
@@ -39,6 +31,7 @@ from sim.ground_truth import (
     vertex_errors,
 )
 from sim.noise import DepthNoiseModel, add_colour_noise, add_depth_noise
+from sim.opengl import projection_matrix, view_matrix
 from sim.physics import ClothMaterial, ClothPhysics, Gripper
 from sim.scenes import SCENES, ClothScene, SceneSpec, kinect_camera, make_scene
 from sim.textures import plain_texture, poster_texture
@@ -59,14 +52,10 @@ __all__ = [
     "add_colour_noise",
     "add_depth_noise",
     "bind_to_surface",
-    "boundary_vertices",
-    "camera_info_from_fov",
     "edge_strain",
     "error_summary",
     "kinect_camera",
-    "look_at",
     "make_scene",
-    "mesh_edges",
     "plain_texture",
     "poster_texture",
     "projection_matrix",

@@ -20,14 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ipc.messages import CameraInfo
-from sim.camera_model import (
-    check_transform,
-    depth_from_zbuffer,
-    invert_transform,
-    projection_matrix,
-    transform_points,
-    view_matrix,
-)
+from perception.geometry import check_transform, invert_transform, transform_points
+from sim.opengl import depth_from_zbuffer, projection_matrix, view_matrix
 from sim.physics import ClothPhysics
 from sim.raster import Shading, rasterise_mesh
 from sim.solids import SolidMesh, rasterise_solid
@@ -83,7 +77,7 @@ class VirtualCamera:
         if camera.D.size and np.any(camera.D != 0):
             raise ValueError(f"VirtualCamera: the renderer is a pinhole; expected no distortion, got D={camera.D.tolist()}")
         self.camera = camera
-        self.T_world_cam = check_transform(T_world_cam, "VirtualCamera: T_world_cam")
+        self.T_world_cam = check_transform("T_world_cam", T_world_cam)
         self.T_cam_world = invert_transform(self.T_world_cam)
         self.near_m = float(near_m)
         self.far_m = float(far_m)

@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import Delaunay
 
+from perception.geometry import check_ids, check_points, unique_edges
+
 log = logging.getLogger(__name__)
 
 
@@ -40,8 +42,8 @@ class ClothMesh:
     name: str = ""
 
     def __post_init__(self):
-        uv = check_points_2d(self.uv_m, "ClothMesh.uv_m")
-        faces = check_faces(self.faces, len(uv), "ClothMesh.faces")
+        uv = check_points("ClothMesh.uv_m", self.uv_m, dim=2)
+        faces = check_ids("ClothMesh.faces", self.faces, len(uv), ndim=2, allow_empty=True)
         object.__setattr__(self, "uv_m", uv)
         object.__setattr__(self, "faces", faces)
         object.__setattr__(self, "landmarks", {str(k): int(v) for k, v in dict(self.landmarks).items()})
@@ -58,7 +60,7 @@ class ClothMesh:
 
     def edges(self) -> np.ndarray:
         """(E, 2) int64 unique undirected edges, smaller id first."""
-        return mesh_edges(self.faces)
+        return unique_edges(self.faces)
 
     def rest_lengths(self) -> np.ndarray:
         """(E,) float64 metres, length of each of ``edges()`` on the flat cloth."""
@@ -86,46 +88,6 @@ class ClothMesh:
         if abs(np.linalg.norm(right) - 1) > 1e-9 or abs(np.linalg.norm(down) - 1) > 1e-9 or abs(right @ down) > 1e-9:
             raise ValueError(f"layout_points: right and down must be orthonormal, got {right.tolist()} and {down.tolist()}")
         return origin + self.uv_m[:, :1] * right + self.uv_m[:, 1:] * down
-
-
-def check_points_2d(points, name: str = "points") -> np.ndarray:
-    """Return ``points`` as a finite (N, 2) float64 array or raise ValueError naming the shape."""
-    arr = np.asarray(points, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != 2:
-        raise ValueError(f"{name}: expected shape (N, 2), got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name}: contains NaN or infinite values")
-    return arr
-
-
-def check_faces(faces, n_vertices: int, name: str = "faces") -> np.ndarray:
-    """Return ``faces`` as (F, 3) int64 ids in [0, n_vertices) or raise ValueError."""
-    arr = np.asarray(faces)
-    if arr.ndim != 2 or arr.shape[1] != 3 or (arr.size and arr.dtype.kind not in "iu"):
-        raise ValueError(f"{name}: expected an integer array of shape (F, 3), got {arr.dtype} {arr.shape}")
-    arr = arr.astype(np.int64)
-    if arr.size and (arr.min() < 0 or arr.max() >= n_vertices):
-        raise ValueError(f"{name}: vertex ids outside [0, {n_vertices})")
-    return arr
-
-
-def mesh_edges(faces: np.ndarray) -> np.ndarray:
-    """Unique undirected edges of a triangle mesh.
-
-    faces : (F, 3) int vertex ids
-    returns (E, 2) int64, smaller id first, sorted
-    """
-    f = np.asarray(faces, dtype=np.int64)
-    pairs = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    return np.unique(np.sort(pairs, axis=1), axis=0)
-
-
-def boundary_vertices(faces: np.ndarray) -> np.ndarray:
-    """(B,) int64 sorted ids of vertices on an edge used by only one face."""
-    f = np.asarray(faces, dtype=np.int64)
-    pairs = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    edges, counts = np.unique(pairs, axis=0, return_counts=True)
-    return np.unique(edges[counts == 1])
 
 
 def edge_strain(vertices: np.ndarray, edges: np.ndarray, rest_lengths: np.ndarray) -> np.ndarray:
@@ -268,8 +230,8 @@ def points_in_polygon(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     points : (N, 2) float; polygon : (P, 2) float, closing edge implied
     returns (N,) bool, True inside
     """
-    pts = check_points_2d(points, "points_in_polygon: points")
-    poly = check_points_2d(polygon, "points_in_polygon: polygon")
+    pts = check_points("points", points, dim=2)
+    poly = check_points("polygon", polygon, dim=2)
     a = poly
     b = np.roll(poly, -1, axis=0)
     x, y = pts[:, :1], pts[:, 1:]

@@ -15,8 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Line3DCollection  # noqa: E402
 
-from perception.camera import rays  # noqa: E402
-from perception.mesh import unique_edges  # noqa: E402
+from perception.geometry import rays, unique_edges  # noqa: E402
 from perception.overlay import draw_mesh  # noqa: E402
 
 # (elevation, azimuth) of matplotlib's 3D camera for the paper's Fig. 5 views, with the

@@ -21,29 +21,22 @@ import logging
 
 import numpy as np
 
+from perception.geometry import check_ids, check_points, face_areas
+
 log = logging.getLogger(__name__)
 
 # pairs (point, triangle) evaluated at once in bind_to_surface, bounds memory to ~100 MB
 _PAIRS_PER_CHUNK = 400_000
 
 
-def _check_vertices(vertices, name: str, ndim: int) -> np.ndarray:
+def _check_vertex_stack(name: str, vertices) -> np.ndarray:
+    """``vertices`` as a finite (T, N, 3) float64 array of T frames, else ValueError naming it."""
     arr = np.asarray(vertices, dtype=np.float64)
-    if arr.ndim != ndim or arr.shape[-1] != 3:
-        want = "(N, 3)" if ndim == 2 else "(T, N, 3)"
-        raise ValueError(f"{name}: expected shape {want}, got {arr.shape}")
+    if arr.ndim != 3 or arr.shape[-1] != 3:
+        raise ValueError(f"Expected {name} with shape (T, N, 3), got {arr.shape}")
     if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name}: contains NaN or infinite values")
+        raise ValueError(f"Expected {name} with finite values, got NaN or infinity")
     return arr
-
-
-def _check_faces(faces, n_vertices: int, name: str = "gt_faces") -> np.ndarray:
-    arr = np.asarray(faces)
-    if arr.ndim != 2 or arr.shape[1] != 3 or arr.shape[0] == 0 or arr.dtype.kind not in "iu":
-        raise ValueError(f"{name}: expected a non-empty integer array of shape (F, 3), got {arr.dtype} {arr.shape}")
-    if arr.min() < 0 or arr.max() >= n_vertices:
-        raise ValueError(f"{name}: vertex ids outside [0, {n_vertices})")
-    return arr.astype(np.int64)
 
 
 def closest_point_barycentric(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
@@ -107,9 +100,9 @@ def bind_to_surface(points: np.ndarray, gt_vertices: np.ndarray, gt_faces: np.nd
     returns tri_ids (N,) int64 and bary (N, 3) float64 (weights of the triangle's
     vertices, >= 0, summing to 1)
     """
-    pts = _check_vertices(points, "points", 2)
-    verts = _check_vertices(gt_vertices, "gt_vertices", 2)
-    faces = _check_faces(gt_faces, len(verts))
+    pts = check_points("points", points, allow_empty=True)
+    verts = check_points("gt_vertices", gt_vertices, allow_empty=True)
+    faces = check_ids("gt_faces", gt_faces, len(verts), ndim=2)
     a, b, c = verts[faces[:, 0]], verts[faces[:, 1]], verts[faces[:, 2]]
     tri_ids = np.empty(len(pts), np.int64)
     bary = np.empty((len(pts), 3))
@@ -146,8 +139,8 @@ def material_point_tracks(first_vertices: np.ndarray, gt_vertices: np.ndarray, g
     returns (T, N, 3) float64: each vertex's closest point on the first true surface,
     followed through the frames as a material point (triangle and barycentrics fixed)
     """
-    first = _check_vertices(first_vertices, "first_vertices", 2)
-    gt = _check_vertices(gt_vertices, "gt_vertices", 3)
+    first = check_points("first_vertices", first_vertices, allow_empty=True)
+    gt = _check_vertex_stack("gt_vertices", gt_vertices)
     if gt.shape[0] == 0:
         raise ValueError("material_point_tracks: expected at least one frame of gt_vertices, got 0")
     tri_ids, bary = bind_to_surface(first, gt[0], gt_faces)
@@ -163,8 +156,8 @@ def vertex_errors(est_vertices: np.ndarray, gt_vertices: np.ndarray, gt_faces: n
     returns (T, N) float64 metres; each estimated vertex is bound at frame 0 to its
     closest point on the true surface and followed as that material point moves
     """
-    est = _check_vertices(est_vertices, "est_vertices", 3)
-    gt = _check_vertices(gt_vertices, "gt_vertices", 3)
+    est = _check_vertex_stack("est_vertices", est_vertices)
+    gt = _check_vertex_stack("gt_vertices", gt_vertices)
     if est.shape[0] != gt.shape[0]:
         raise ValueError(f"vertex_errors: est_vertices has {est.shape[0]} frames, gt_vertices {gt.shape[0]}")
     if est.shape[0] == 0:
@@ -185,7 +178,7 @@ def hidden_behind_occluder(points_cam: np.ndarray, occluder_mask: np.ndarray, oc
     lies behind the occluder there; points outside the image or behind the camera are not
     hidden by it
     """
-    pts = _check_vertices(points_cam, "points_cam", 2)
+    pts = check_points("points_cam", points_cam, allow_empty=True)
     mask = np.asarray(occluder_mask, dtype=bool)
     depth = np.asarray(occluder_depth_m, dtype=np.float64)
     if mask.ndim != 2 or depth.shape != mask.shape:
@@ -207,13 +200,6 @@ def hidden_behind_occluder(points_cam: np.ndarray, occluder_mask: np.ndarray, oc
     return hidden
 
 
-def face_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(F,) float64 areas of the triangles ``faces`` (F, 3) of ``vertices`` (N, 3), square metres."""
-    v = _check_vertices(vertices, "vertices", 2)
-    f = _check_faces(faces, len(v), "faces")
-    return 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
-
-
 def occluded_area_ratio(vertices: np.ndarray, canonical: np.ndarray, faces: np.ndarray,
                         hidden: np.ndarray) -> tuple[float, float]:
     """Does the occluded part of an estimated mesh keep its area?
@@ -225,10 +211,10 @@ def occluded_area_ratio(vertices: np.ndarray, canonical: np.ndarray, faces: np.n
     1 means the hidden part kept its size; below 1 it was squeezed, above stretched.
     """
     hid = np.asarray(hidden, dtype=bool)
-    v = _check_vertices(vertices, "vertices", 2)
+    v = check_points("vertices", vertices, allow_empty=True)
     if hid.shape != (len(v),):
         raise ValueError(f"occluded_area_ratio: expected hidden of shape ({len(v)},), got {hid.shape}")
-    f = _check_faces(faces, len(v), "faces")
+    f = check_ids("faces", faces, len(v), ndim=2)
     covered = f[hid[f].all(axis=1)]
     if len(covered) == 0:
         return float("nan"), 0.0

@@ -28,9 +28,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from tqdm import tqdm
 
+from perception.geometry import face_areas
 from perception.tracker import MeshTracker, TrackerConfig
 from sim.evaluation import SceneRecording
-from sim.ground_truth import face_areas, hidden_behind_occluder, material_point_tracks, occluded_area_ratio
+from sim.ground_truth import hidden_behind_occluder, material_point_tracks, occluded_area_ratio
 
 log = logging.getLogger(__name__)
 

@@ -47,15 +47,15 @@ from typing import Self
 import numpy as np
 
 from ipc.messages import CameraInfo, RGBDFrame
-from sim.camera import Lighting, VirtualCamera
-from sim.camera_model import look_at, transform_points
-from sim.cloth_mesh import (
-    ClothMesh,
-    TShirtShape,
+from perception.geometry import (
+    boundary_edges,
     boundary_vertices,
-    rectangle_mesh,
-    tshirt_mesh,
+    look_at,
+    rotation_about_axis,
+    transform_points,
 )
+from sim.camera import Lighting, VirtualCamera
+from sim.cloth_mesh import ClothMesh, TShirtShape, rectangle_mesh, tshirt_mesh
 from sim.noise import DepthNoiseModel, add_colour_noise, add_depth_noise
 from sim.physics import ClothMaterial, ClothPhysics, Gripper
 from sim.scenes import Box, kinect_camera
@@ -118,18 +118,6 @@ def tshirt_corners_uv(shape: TShirtShape) -> tuple[np.ndarray, tuple]:
     rows = (1, 2, 4, 5, 7, 8)
     names = ("right_cuff_top", "right_cuff_bottom", "right_hem", "left_hem", "left_cuff_bottom", "left_cuff_top")
     return key[list(rows)].astype(np.float64), names
-
-
-def boundary_edges(mesh: ClothMesh) -> np.ndarray:
-    """Edges of the cloth's outline: those used by one face only.
-
-    returns (E, 2) int64 vertex ids, each edge once, unordered (a T-shirt's outline may
-    touch itself at a vertex, so no single loop is assumed)
-    """
-    f = mesh.faces
-    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    unique, counts = np.unique(edges, axis=0, return_counts=True)
-    return unique[counts == 1].astype(np.int64)
 
 
 def distance_to_segments(points: np.ndarray, segments: np.ndarray) -> np.ndarray:
@@ -228,13 +216,6 @@ class LaundrySpec:
         w, h = self.cloth.size_m
         texture = "printed" if self.printed else "plain"
         return f"seed {self.seed}: {texture} {self.cloth_kind} {w:.2f}x{h:.2f} m, {self.state}"
-
-
-def _rotation(axis: np.ndarray, angle_rad: float) -> np.ndarray:
-    """(3, 3) rotation about a unit axis (Rodrigues)."""
-    a = np.asarray(axis, dtype=np.float64) / np.linalg.norm(axis)
-    k = np.array([[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]])
-    return np.eye(3) + np.sin(angle_rad) * k + (1.0 - np.cos(angle_rad)) * (k @ k)
 
 
 def _flat_on_table(mesh: ClothMesh, yaw_rad: float, height_m: float) -> np.ndarray:
@@ -348,14 +329,15 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
     holder_vertex, holder_position, rest_s = None, None, 0.0
     target = np.array([0.0, 0.0, table_top])
     if state == "flat":
-        tilt = _rotation(np.array([np.cos(yaw), np.sin(yaw), 0.0]), np.radians(rng.uniform(-4.0, 4.0)))
+        tilt = rotation_about_axis(np.array([np.cos(yaw), np.sin(yaw), 0.0]), np.radians(rng.uniform(-4.0, 4.0)))
         flat = _flat_on_table(mesh, yaw, 0.0)
         verts = flat @ tilt.T + [0.0, 0.0, table_top + 0.03 + rng.uniform(0.0, 0.03)]
         settle_s = 1.0
     elif state == "crumpled":
         flat = _flat_on_table(mesh, yaw, 0.0)
         axis_angle = rng.uniform(0.0, np.pi)
-        tilt = _rotation(np.array([np.cos(axis_angle), np.sin(axis_angle), 0.0]), np.radians(rng.uniform(35.0, 75.0)))
+        tilt = rotation_about_axis(np.array([np.cos(axis_angle), np.sin(axis_angle), 0.0]),
+                                   np.radians(rng.uniform(35.0, 75.0)))
         verts = flat @ tilt.T
         verts[:, 2] += table_top + rng.uniform(0.10, 0.25) - verts[:, 2].min()
         settle_s = 2.0
@@ -387,7 +369,7 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
     T_world_cam = _camera_pose(rng, target)
     return LaundrySpec(
         seed=seed, cloth_kind=kind, cloth=mesh, printed=printed, texture_rgb=texture, material=material,
-        corners_uv=corners_uv, corner_names=names, outline_edges=boundary_edges(mesh), state=state,
+        corners_uv=corners_uv, corner_names=names, outline_edges=boundary_edges(mesh.faces), state=state,
         cloth_vertices_world=verts, holder_vertex=holder_vertex, holder_position=holder_position,
         table_top_z=float(table_top), boxes=boxes, camera=camera, T_world_cam=T_world_cam, settle_s=settle_s,
         rest_s=rest_s,
@@ -515,7 +497,7 @@ class LaundryScene:
         if self.holder is None:
             raise ValueError("render_turned: the cloth is not held (state 'held' only)")
         turn = np.eye(4)
-        turn[:3, :3] = _rotation(np.array([0.0, 0.0, 1.0]), -float(angle_rad))
+        turn[:3, :3] = rotation_about_axis(np.array([0.0, 0.0, 1.0]), -float(angle_rad))
         axis = np.array([*self.spec.holder_position[:2], 0.0])
         turn[:3, 3] = axis - turn[:3, :3] @ axis
         T_world_cam = turn @ self.T_world_cam

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from perception.geometry import check_vector
 from sim.cloth_mesh import ClothMesh, write_obj
 
 log = logging.getLogger(__name__)
@@ -89,13 +90,6 @@ class ClothMaterial:
         return self.node_mass_kg(mesh) / timestep_s * self.damping_number
 
 
-def _check_vector(value, n: int, name: str) -> np.ndarray:
-    arr = np.asarray(value, dtype=np.float64)
-    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name}: expected {n} finite numbers, got shape {arr.shape}")
-    return arr
-
-
 def _check_timestep(where: str, timestep_s) -> float:
     if not 0 < timestep_s <= 0.02:
         raise ValueError(f"{where}: expected 0 < timestep_s <= 0.02, got {timestep_s}")
@@ -103,7 +97,7 @@ def _check_timestep(where: str, timestep_s) -> float:
 
 
 def _check_quat(value, name: str) -> np.ndarray:
-    q = _check_vector(value, 4, name)
+    q = check_vector(name, value, size=4)
     norm = np.linalg.norm(q)
     if abs(norm - 1.0) > 1e-6:
         raise ValueError(f"{name}: expected a unit quaternion (x, y, z, w), got norm {norm:.6g}")
@@ -170,8 +164,8 @@ class Gripper:
         position : (3,) float, metres, world frame; quat_xyzw : (4,) unit quaternion,
         default the current orientation
         """
-        pos = _check_vector(position, 3, "Gripper.move_to: position")
-        quat = self._quat if quat_xyzw is None else _check_quat(quat_xyzw, "Gripper.move_to: quat_xyzw")
+        pos = check_vector("position", position)
+        quat = self._quat if quat_xyzw is None else _check_quat(quat_xyzw, "quat_xyzw")
         self._target = (pos, quat)
 
     def close_on(self, nodes) -> None:
@@ -233,7 +227,7 @@ class ClothPhysics:
         p = self.pybullet
         self.client = p.connect(p.DIRECT)
         p.resetSimulation(p.RESET_USE_DEFORMABLE_WORLD, physicsClientId=self.client)
-        p.setGravity(*_check_vector(gravity_m_s2, 3, "gravity_m_s2"), physicsClientId=self.client)
+        p.setGravity(*check_vector("gravity_m_s2", gravity_m_s2), physicsClientId=self.client)
         p.setTimeStep(self.timestep_s, physicsClientId=self.client)
         self._tmp = tempfile.TemporaryDirectory(prefix="clothkit_sim_")
         self.time_s = 0.0
@@ -268,11 +262,11 @@ class ClothPhysics:
         half_extents_m : (3,) metres; position : (3,) metres, world; rgba : 4 floats in [0, 1]
         """
         p = self.pybullet
-        half = _check_vector(half_extents_m, 3, "add_box: half_extents_m")
+        half = check_vector("half_extents_m", half_extents_m)
         if np.any(half <= 0):
             raise ValueError(f"add_box: half extents must be positive, got {half.tolist()}")
-        pos = _check_vector(position, 3, "add_box: position")
-        quat = _check_quat(quat_xyzw, "add_box: quat_xyzw")
+        pos = check_vector("position", position)
+        quat = _check_quat(quat_xyzw, "quat_xyzw")
         col = p.createCollisionShape(p.GEOM_BOX, halfExtents=half.tolist(), physicsClientId=self.client)
         vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half.tolist(), rgbaColor=list(rgba),
                                   physicsClientId=self.client)
@@ -342,7 +336,7 @@ class ClothPhysics:
 
     def nodes_near(self, point, radius_m: float) -> np.ndarray:
         """(K,) int64 ids of cloth nodes within ``radius_m`` of ``point`` (3,), world metres."""
-        centre = _check_vector(point, 3, "nodes_near: point")
+        centre = check_vector("point", point)
         d = np.linalg.norm(self.cloth_vertices() - centre, axis=1)
         return np.nonzero(d <= radius_m)[0].astype(np.int64)
 
@@ -350,11 +344,11 @@ class ClothPhysics:
                     rgba=(0.2, 0.2, 0.2, 1.0)) -> Gripper:
         """A kinematic gripper at a world pose; invisible unless ``visual_half_extents_m`` (3,) is given."""
         p = self.pybullet
-        pos = _check_vector(position, 3, "add_gripper: position")
-        quat = _check_quat(quat_xyzw, "add_gripper: quat_xyzw")
+        pos = check_vector("position", position)
+        quat = _check_quat(quat_xyzw, "quat_xyzw")
         vis = -1
         if visual_half_extents_m is not None:
-            half = _check_vector(visual_half_extents_m, 3, "add_gripper: visual_half_extents_m")
+            half = check_vector("visual_half_extents_m", visual_half_extents_m)
             vis = p.createVisualShape(p.GEOM_BOX, halfExtents=half.tolist(), rgbaColor=list(rgba),
                                       physicsClientId=self.client)
         body = p.createMultiBody(0.0, -1, vis, pos.tolist(), quat.tolist(), physicsClientId=self.client)

@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from ipc.messages import CameraInfo
+from perception.geometry import vertex_normals
 
 log = logging.getLogger(__name__)
 
@@ -51,19 +52,6 @@ class MeshRaster:
     rgb: np.ndarray
     depth_m: np.ndarray
     mask: np.ndarray
-
-
-def vertex_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(V, 3) unit area-weighted vertex normals (right-hand rule on ``faces``); zero for unused vertices."""
-    p = np.asarray(points, dtype=np.float64)
-    f = np.asarray(faces)
-    n_face = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
-    n = np.zeros_like(p)
-    for k in range(3):
-        for d in range(3):
-            n[:, d] += np.bincount(f[:, k], weights=n_face[:, d], minlength=len(p))
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
 
 
 def _vertex_lighting(points: np.ndarray, faces: np.ndarray, shading: Shading) -> np.ndarray:

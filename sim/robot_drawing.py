@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.camera_model import check_transform
+from perception.geometry import check_transform
 from sim.solids import SolidMesh, box, capsule, cylinder, merge, sphere
 
 log = logging.getLogger(__name__)
@@ -132,7 +132,7 @@ class GripperLook:
 
     def wrist_end(self, T_world_gripper: np.ndarray) -> np.ndarray:
         """(3,) world point where the wrist meets the forearm."""
-        T = check_transform(T_world_gripper, "GripperLook: T_world_gripper")
+        T = check_transform("T_world_gripper", T_world_gripper)
         back = self.finger_length_m + self.palm_depth_m + self.wrist_length_m
         return T[:3, 3] - back * T[:3, 2]
 
@@ -143,7 +143,7 @@ class GripperLook:
         opening_m : distance between the fingers' inner faces
         shoulder_world : (3,) where the arm is mounted, or None for a forearm straight back
         """
-        T = check_transform(T_world_gripper, "GripperLook: T_world_gripper")
+        T = check_transform("T_world_gripper", T_world_gripper)
         wrist = self.wrist_end(T)
         if shoulder_world is None:
             elbow = wrist - self.forearm_length_m * T[:3, 2]

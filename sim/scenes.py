@@ -46,8 +46,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ipc.messages import CameraInfo, RGBDFrame
+from perception.geometry import look_at, transform_points
 from sim.camera import SOLID_ID, Lighting, VirtualCamera
-from sim.camera_model import look_at, transform_points
 from sim.cloth_mesh import ClothMesh, TShirtShape, rectangle_mesh, tshirt_mesh
 from sim.noise import DepthNoiseModel, add_colour_noise, add_depth_noise
 from sim.physics import ClothMaterial, ClothPhysics

@@ -21,7 +21,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from ipc.messages import CameraInfo
-from sim.camera_model import check_points_3d, check_transform, transform_points
+from perception.geometry import (
+    check_ids,
+    check_points,
+    check_positive,
+    check_transform,
+    crop_intrinsics,
+    face_normals,
+    frame_along,
+    transform_points,
+)
 from sim.raster import MeshRaster, Shading, rasterise_mesh
 
 log = logging.getLogger(__name__)
@@ -38,13 +47,6 @@ def _check_colour(colour) -> np.ndarray:
     return np.rint(c).astype(np.uint8)
 
 
-def _check_positive(value, name: str) -> float:
-    v = float(value)
-    if not (np.isfinite(v) and v > 0):
-        raise ValueError(f"{name}: expected a positive number, got {value}")
-    return v
-
-
 @dataclass(frozen=True)
 class SolidMesh:
     """A flat-coloured triangle mesh.
@@ -59,22 +61,18 @@ class SolidMesh:
     colours: np.ndarray
 
     def __post_init__(self):
-        points = check_points_3d(self.points, "SolidMesh.points")
-        faces = np.asarray(self.faces)
-        if faces.ndim != 2 or faces.shape[1] != 3 or faces.dtype.kind not in "iu":
-            raise ValueError(f"SolidMesh.faces: expected an integer array of shape (F, 3), got {faces.dtype} {faces.shape}")
-        if faces.size and (faces.min() < 0 or faces.max() >= len(points)):
-            raise ValueError(f"SolidMesh.faces: vertex ids outside [0, {len(points)})")
+        points = check_points("SolidMesh.points", self.points, allow_empty=True)
+        faces = check_ids("SolidMesh.faces", self.faces, len(points), ndim=2, allow_empty=True)
         colours = np.asarray(self.colours)
         if colours.shape != (len(points), 3):
             raise ValueError(f"SolidMesh.colours: expected shape ({len(points)}, 3), got {colours.shape}")
         object.__setattr__(self, "points", points)
-        object.__setattr__(self, "faces", faces.astype(np.int64))
+        object.__setattr__(self, "faces", faces)
         object.__setattr__(self, "colours", colours.astype(np.uint8))
 
     def transformed(self, T_a_b: np.ndarray) -> SolidMesh:
         """The mesh with its points mapped from frame b to frame a by the (4, 4) rigid transform ``T_a_b``."""
-        return SolidMesh(transform_points(check_transform(T_a_b, "SolidMesh.transformed: T_a_b"), self.points),
+        return SolidMesh(transform_points(check_transform("T_a_b", T_a_b), self.points),
                          self.faces, self.colours)
 
 
@@ -119,16 +117,6 @@ def box(half_extents_m, colour, T_frame_box: np.ndarray | None = None) -> SolidM
     return mesh if T_frame_box is None else mesh.transformed(T_frame_box)
 
 
-def _frame_along(start: np.ndarray, end: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation whose third column is the unit vector from start to end."""
-    axis = end - start
-    axis = axis / np.linalg.norm(axis)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    x = np.cross(helper, axis)
-    x /= np.linalg.norm(x)
-    return np.column_stack([x, np.cross(axis, x), axis])
-
-
 @functools.lru_cache(maxsize=16)
 def _unit_cylinder(segments: int) -> tuple[np.ndarray, np.ndarray]:
     """Points and faces of a closed cylinder of radius 1 from z = 0 to z = 1 (side, then caps)."""
@@ -154,14 +142,14 @@ def cylinder(start, end, radius_m: float, colour, segments: int = 16) -> SolidMe
     The side's vertices are shared around each ring (smooth shading); each cap has its own.
     """
     p0, p1 = np.asarray(start, dtype=np.float64).reshape(3), np.asarray(end, dtype=np.float64).reshape(3)
-    radius = _check_positive(radius_m, "cylinder: radius_m")
+    radius = check_positive("radius_m", radius_m)
     length = float(np.linalg.norm(p1 - p0))
     if length < 1e-9:
         raise ValueError("cylinder: start and end coincide")
     if int(segments) < 3:
         raise ValueError(f"cylinder: expected at least 3 segments, got {segments}")
     points, faces = _unit_cylinder(int(segments))
-    R = _frame_along(p0, p1)
+    R = frame_along(p1 - p0)
     return _painted((points * [radius, radius, length]) @ R.T + p0, faces, colour)
 
 
@@ -192,7 +180,7 @@ def _unit_sphere(rings: int, segments: int) -> tuple[np.ndarray, np.ndarray]:
 def sphere(centre, radius_m: float, colour, rings: int = 8, segments: int = 16) -> SolidMesh:
     """A UV sphere of ``radius_m`` around ``centre`` (3,), metres."""
     c = np.asarray(centre, dtype=np.float64).reshape(3)
-    radius = _check_positive(radius_m, "sphere: radius_m")
+    radius = check_positive("radius_m", radius_m)
     if int(rings) < 2 or int(segments) < 3:
         raise ValueError(f"sphere: expected at least 2 rings and 3 segments, got {rings} and {segments}")
     points, faces = _unit_sphere(int(rings), int(segments))
@@ -222,12 +210,9 @@ def rasterise_solid(mesh_cam: SolidMesh, camera: CameraInfo, shading: Shading, n
         return MeshRaster(rgb, depth, mask)
     x0, y0, x1, y1 = window
     p, f = mesh_cam.points, mesh_cam.faces
-    normal = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
+    normal = face_normals(p, f)
     facing = f[np.einsum("ij,ij->i", normal, p[f[:, 0]]) < 0]  # the camera is at the origin
-    K = camera.K.copy()
-    K[0, 2] -= x0
-    K[1, 2] -= y0
-    crop = CameraInfo(width=x1 - x0 + 1, height=y1 - y0 + 1, K=K)
+    crop = CameraInfo(width=x1 - x0 + 1, height=y1 - y0 + 1, K=crop_intrinsics(camera.K, x0, y0))
     palette, index = np.unique(mesh_cam.colours, axis=0, return_inverse=True)
     index = index.reshape(-1)
     n = len(palette)

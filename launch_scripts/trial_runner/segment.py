@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 
 from ipc.messages import RGBDFrame
-from perception.camera import backproject
+from perception.geometry import backproject
 
 log = logging.getLogger(__name__)
 

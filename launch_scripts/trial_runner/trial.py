@@ -55,7 +55,7 @@ from launch_scripts.trial_runner.pictures import (
 )
 from launch_scripts.trial_runner.processes import ChildError, Children
 from launch_scripts.trial_runner.segment import cloth_points, mask_from_reference
-from sim.camera_model import invert_transform, transform_points
+from perception.geometry import invert_transform, transform_points
 from sim.grasp_execution import ExecutionConfig, execute_grasp
 from sim.ground_truth import error_summary, vertex_errors
 
@@ -269,8 +269,8 @@ def scene_record(seed: int, scene_options: dict | None = None, spec=None) -> dic
 
 def _wide_view(scene):
     """A camera 2.5 m back from the table, to see the lifted cloth hanging above it."""
+    from perception.geometry import look_at
     from sim.camera import VirtualCamera
-    from sim.camera_model import look_at
 
     top = scene.spec.table_top_z
     eye = np.array([0.0, -2.3, top + 1.2])

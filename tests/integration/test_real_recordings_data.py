@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from perception.camera import backproject, project
+from perception.geometry import backproject, project
 from perception.recordings import KINECT_V1_K, data_root, read_groundtruth_flow, read_reference_masks
 from perception.sequence import open_sequence
 

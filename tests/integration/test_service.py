@@ -33,7 +33,6 @@ from ipc.messages import (
 )
 from ipc.transport import Publisher, RemoteError, RequestClient, Subscriber
 from perception import TrackerConfig
-from perception.tracker import config_with
 from perception.service import (
     MAX_MESH_VERTICES,
     MAX_VERTEX_STEPS,
@@ -45,6 +44,7 @@ from perception.service import (
     apply_parameters,
 )
 from perception.sources import FrameSource, Pacing, publish_frames
+from perception.tracker import config_with
 from tests.render import frame_of, grid_surface, plane_points, texture
 
 pytestmark = pytest.mark.timeout(120)

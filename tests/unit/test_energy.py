@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from perception.camera import backproject, project
 from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, MotionPriorTerm, SmoothnessTerm
+from perception.geometry import backproject, project
 from perception.mesh import barycentric_matrix, rectangle_mesh
 
 K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])

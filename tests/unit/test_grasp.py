@@ -12,11 +12,17 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from grasping import GraspPlanner, GraspPlannerConfig, GraspResult, GraspTerms, find_corners, plan_grasps
-from grasping import _planner
-from grasping._geometry import project_points
+from grasping import (
+    GraspPlanner,
+    GraspPlannerConfig,
+    GraspResult,
+    GraspTerms,
+    _planner,
+    find_corners,
+    plan_grasps,
+)
 from ipc.messages import CameraInfo, GraspPlan, MeshEstimate, RGBDFrame
-from sim.camera_model import invert_transform, look_at, transform_points
+from perception.geometry import invert_transform, look_at, transform_points
 
 S = 0.02  # grid spacing, metres
 ROW = S * np.sqrt(3) / 2  # distance between grid rows, metres
@@ -610,18 +616,6 @@ def test_plans_carry_the_estimate_frame_and_time(caplog):
         result = plan_grasps(est)
     assert all(p.frame_id == "cam_optical" and p.timestamp_s == 12.5 for p in result.plans)
     assert any("corner grasp(s)" in r.getMessage() for r in caplog.records)
-
-
-def test_project_points_matches_opencv():
-    cv2 = pytest.importorskip("cv2")
-    rng = np.random.default_rng(3)
-    points = rng.uniform([-0.3, -0.2, 0.8], [0.3, 0.2, 1.5], (20, 3))
-    for D in (np.zeros(0), np.array([0.1, -0.05, 0.001, -0.002, 0.01]), np.array([0.1, -0.05, 0.001, -0.002, 0.01, 0.02, -0.01, 0.005])):
-        camera = CameraInfo(width=640, height=480, K=np.array([[500.0, 0, 320], [0, 510.0, 240], [0, 0, 1]]), D=D)
-        expected, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), camera.K, D if D.size else None)
-        np.testing.assert_allclose(project_points(points, camera), expected[:, 0], atol=1e-9)
-    behind = project_points(np.array([[0.0, 0.0, -1.0]]), CAMERA)
-    assert np.all(np.isnan(behind))
 
 
 def test_equal_scores_put_the_sharpest_corners_first():

@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 
+from perception.geometry import boundary_edges
 from sim.cloth_mesh import TShirtShape, rectangle_mesh, tshirt_mesh
 from sim.laundry import (
     CLOTH_KINDS,
     INITIAL_STATES,
-    boundary_edges,
     distance_to_segments,
     laundry_spec,
     nearest_corner,
@@ -36,7 +36,7 @@ def convex_corners(uv_polygon, max_angle_deg=135.0):
 
 def test_rectangle_outline_and_corners_match_its_geometry():
     mesh = rectangle_mesh(0.5, 0.4, spacing_m=0.03)
-    segments = mesh.uv_m[boundary_edges(mesh)]
+    segments = mesh.uv_m[boundary_edges(mesh.faces)]
     assert np.sum(np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1)) == pytest.approx(2 * (0.5 + 0.4))
     on_outline = distance_to_segments(mesh.uv_m, segments) < 1e-12
     on_rectangle = np.isclose(mesh.uv_m, 0.0).any(axis=1) | np.isclose(mesh.uv_m, [0.5, 0.4]).any(axis=1)
@@ -55,7 +55,7 @@ def test_tshirt_corners_are_its_sharp_outline_corners_except_the_neck(scale):
     assert len(names) == 6 and {"left_hem", "right_hem", "left_cuff_top", "right_cuff_bottom"} <= set(names)
     # Every true corner is a vertex of the mesh, on its outline.
     assert np.min(np.linalg.norm(mesh.uv_m[None] - corners[:, None], axis=2), axis=1).max() < 1e-9
-    assert distance_to_segments(corners, mesh.uv_m[boundary_edges(mesh)]).max() < 1e-9
+    assert distance_to_segments(corners, mesh.uv_m[boundary_edges(mesh.faces)]).max() < 1e-9
     # The shape's sharp convex corners are the six, plus the two ends of the neck opening.
     polygon = shape.outline()
     found = convex_corners(polygon - polygon.min(axis=0))

@@ -1,8 +1,15 @@
 import numpy as np
 import pytest
 
-from perception.mesh import (barycentric_2d, barycentric_matrix, lattice_to_xy, locate_in_faces, mesh_from_lattice,
-                             rectangle_mesh, unique_edges)
+from perception.geometry import unique_edges
+from perception.mesh import (
+    barycentric_2d,
+    barycentric_matrix,
+    lattice_to_xy,
+    locate_in_faces,
+    mesh_from_lattice,
+    rectangle_mesh,
+)
 from perception.raster import locate_pixels
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from ipc.messages import CameraInfo
-from perception.camera import project
+from perception.geometry import project
 from perception.raster import faces_mask
 from perception.recordings import write_reference_masks
 from perception.sequence import SequenceWriter, open_sequence

@@ -3,7 +3,7 @@ mesh in front of the camera whose projection is known."""
 
 import numpy as np
 
-from perception.camera import backproject, project
+from perception.geometry import backproject, project
 from perception.mesh import rectangle_mesh
 from perception.raster import faces_mask
 from perception.recording_scores import flow_score, mask_coverage, vertices_on_mask

@@ -10,8 +10,16 @@ import numpy as np
 import pytest
 
 from launch_scripts.convert_recording import main
-from perception.recordings import (FLOW_FILE, KINECT_V1_K, MASKS_INDEX, RecordingError, carry_mask,
-                                   read_groundtruth_flow, read_recording, read_reference_masks)
+from perception.recordings import (
+    FLOW_FILE,
+    KINECT_V1_K,
+    MASKS_INDEX,
+    RecordingError,
+    carry_mask,
+    read_groundtruth_flow,
+    read_recording,
+    read_reference_masks,
+)
 from perception.sequence import open_sequence
 
 H, W = 480, 640

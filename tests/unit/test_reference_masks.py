@@ -4,8 +4,14 @@ a grey bar held by two skin-coloured hands, one behind it and one at its own dep
 import numpy as np
 import pytest
 
-from perception.reference_masks import (MaskConfig, ReferenceMaskError, automatic_seed, depth_steps,
-                                        follow_object, skin_mask)
+from perception.reference_masks import (
+    MaskConfig,
+    ReferenceMaskError,
+    automatic_seed,
+    depth_steps,
+    follow_object,
+    skin_mask,
+)
 
 H, W = 240, 320
 GREY = (120, 122, 128)

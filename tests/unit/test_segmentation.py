@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from ipc.messages import CameraInfo
-from perception.camera import rays
+from perception.geometry import rays
 from perception.segmentation import SegmentationConfig, find_object, outline, segment_tracked
 
 CAM = CameraInfo.from_fov(320, 240, np.deg2rad(50))

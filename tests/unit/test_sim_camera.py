@@ -4,17 +4,15 @@ import numpy as np
 import pytest
 
 from ipc.messages import CameraInfo
-from sim.camera import VirtualCamera
-from sim.camera_model import (
-    camera_info_from_fov,
+from perception.geometry import (
+    boundary_vertices,
     check_transform,
-    depth_from_zbuffer,
     look_at,
-    projection_matrix,
     transform_points,
-    view_matrix,
 )
-from sim.cloth_mesh import boundary_vertices, rectangle_mesh
+from sim.camera import VirtualCamera
+from sim.cloth_mesh import rectangle_mesh
+from sim.opengl import depth_from_zbuffer, projection_matrix, view_matrix
 from sim.physics import ClothMaterial, ClothPhysics
 from sim.scenes import kinect_camera
 
@@ -22,7 +20,10 @@ pybullet = pytest.importorskip("pybullet")
 
 
 def test_projection_matrix_equals_pybullet_fov_matrix():
-    cam = camera_info_from_fov(640, 480, np.radians(50.0))
+    # the camera whose image the TinyRenderer draws with a symmetric frustum: cx = W / 2 and,
+    # under its row sampling (sim.opengl's docstring), cy = H / 2 - 1
+    f = 0.5 * 480 / np.tan(np.radians(25.0))
+    cam = CameraInfo(640, 480, np.array([[f, 0.0, 320.0], [0.0, f, 239.0], [0.0, 0.0, 1.0]]))
     ours = projection_matrix(cam, 0.1, 8.0)
     theirs = pybullet.computeProjectionMatrixFOV(50.0, 640 / 480, 0.1, 8.0)
     np.testing.assert_allclose(ours, theirs, atol=1e-6)
@@ -41,8 +42,8 @@ def test_look_at_is_an_optical_frame():
     np.testing.assert_allclose(transform_points(T, [[0, 0, 1.0]]), [[0, 0, 1]], atol=1e-12)
     with pytest.raises(ValueError, match="parallel"):
         look_at([0, 0, 0], [0, 0, 1])
-    with pytest.raises(ValueError, match=r"expected a \(4, 4\) transform, got shape \(3, 3\)"):
-        check_transform(np.eye(3))
+    with pytest.raises(ValueError, match=r"T with shape \(4, 4\), got \(3, 3\)"):
+        check_transform("T", np.eye(3))
 
 
 def test_depth_from_zbuffer_inverts_the_opengl_depth():

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from sim.camera_model import transform_points
+from perception.geometry import transform_points
 from sim.cloth_mesh import edge_strain
 from sim.raster import Shading
 from sim.scenes import (

@@ -4,9 +4,10 @@ import numpy as np
 import pytest
 
 from ipc.messages import CameraInfo
+from perception.geometry import vertex_normals
 from sim import _reference
 from sim.cloth_mesh import rectangle_mesh
-from sim.raster import Shading, rasterise_mesh, vertex_normals
+from sim.raster import Shading, rasterise_mesh
 
 CAM = CameraInfo(width=80, height=60, K=np.array([[70.0, 0, 39.5], [0, 70.0, 29.5], [0, 0, 1]]))
 LIGHT = Shading(light_dir_cam=np.array([0.0, 0.0, -1.0]), ambient=0.5, diffuse=0.5, specular=0.0)

@@ -7,10 +7,10 @@ import cv2
 import numpy as np
 import pytest
 
+from ipc.messages import CameraInfo
 from perception.sequence import SequenceWriter
 from perception.track import main
 from tests.render import frame_of, grid_surface, plane_points, texture
-from ipc.messages import CameraInfo
 
 CAM = CameraInfo.from_fov(320, 240, np.deg2rad(45))
 SIZE = (0.6, 0.45)

@@ -6,7 +6,7 @@ import pytest
 
 from ipc.messages import CameraInfo
 from perception import MeshTracker, TrackerConfig
-from perception.camera import project
+from perception.geometry import project
 from perception.visibility import NO_DEPTH, OCCLUDED, OUT_OF_VIEW, VISIBLE, classify_vertices
 from tests.render import frame_of, grid_surface, plane_points, texture, with_occluder
 

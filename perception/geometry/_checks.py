@@ -1,23 +1,20 @@
-"""Input checks for the public functions of ``grasping``.
+"""Input checks for arrays at public boundaries.
 
-Each ``check_*`` helper converts its argument to the documented array form and
-raises ``ValueError`` with a one-line message naming the argument and what was
-received (shape, dtype or value), never ``assert``: input checks must survive
-``python -O``.
+Each ``check_*`` helper converts its argument to the documented array form and raises
+``ValueError`` with a one-line message naming the argument and what was received (shape,
+dtype or value), never ``assert``: input checks must survive ``python -O``. The first
+argument is the name used in the message, the second the value.
 """
 
 from __future__ import annotations
 
-import logging
 import math
 
 import numpy as np
 
-log = logging.getLogger(__name__)
-
 
 def check_positive(name: str, value, allow_zero: bool = False) -> float:
-    """``value`` as a finite float > 0 (or >= 0), else ValueError naming it."""
+    """``value`` as a finite float > 0 (or >= 0 with ``allow_zero``), else ValueError naming it."""
     value = float(value)
     if not math.isfinite(value) or value < 0 or (value == 0 and not allow_zero):
         bound = ">= 0" if allow_zero else "> 0"
@@ -25,15 +22,16 @@ def check_positive(name: str, value, allow_zero: bool = False) -> float:
     return value
 
 
-def check_points(name: str, points, n: int | None = None, dim: int = 3) -> np.ndarray:
+def check_points(name: str, points, n: int | None = None, dim: int = 3, allow_empty: bool = False) -> np.ndarray:
     """Return ``points`` as a finite (n, dim) float64 array.
 
     Parameters
     ----------
     name : argument name used in the error message
     points : array-like, expected shape (n, dim)
-    n : required number of rows, or None for any (at least one)
+    n : required number of rows, or None for any (at least one, unless ``allow_empty``)
     dim : required number of columns
+    allow_empty : whether zero rows are accepted
 
     Returns
     -------
@@ -46,7 +44,7 @@ def check_points(name: str, points, n: int | None = None, dim: int = 3) -> np.nd
     if arr.dtype.kind not in "fiu":
         raise ValueError(f"Expected {name} with a numeric dtype, got {arr.dtype}")
     arr = arr.astype(np.float64, copy=False)
-    if arr.shape[0] == 0:
+    if arr.shape[0] == 0 and not allow_empty:
         raise ValueError(f"Expected {name} with at least one row, got {arr.shape}")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"Expected {name} with finite values, got NaN or infinity")
@@ -54,7 +52,7 @@ def check_points(name: str, points, n: int | None = None, dim: int = 3) -> np.nd
 
 
 def check_ids(name: str, ids, n_vertices: int, ndim: int = 1, allow_empty: bool = False) -> np.ndarray:
-    """Return vertex ids as an int64 array of shape (K,) (``ndim=1``) or (K, 3) (``ndim=2``).
+    """Return vertex ids as an int64 array of shape (K,) (``ndim=1``) or (K, 3) (``ndim=2``, faces).
 
     Parameters
     ----------
@@ -69,8 +67,7 @@ def check_ids(name: str, ids, n_vertices: int, ndim: int = 1, allow_empty: bool 
     (K,) or (K, 3) int64
     """
     arr = np.asarray(ids)
-    bad_shape = arr.ndim != ndim or (ndim == 2 and arr.shape[1] != 3)
-    if bad_shape:
+    if arr.ndim != ndim or (ndim == 2 and arr.shape[1] != 3):
         want = "(K,)" if ndim == 1 else "(K, 3)"
         raise ValueError(f"Expected {name} with shape {want}, got {arr.shape}")
     if arr.size == 0:
@@ -87,15 +84,15 @@ def check_ids(name: str, ids, n_vertices: int, ndim: int = 1, allow_empty: bool 
     return arr
 
 
-def check_vector(name: str, vector, unit: bool = False) -> np.ndarray:
-    """Return ``vector`` as a finite (3,) float64 array, normalised if ``unit``.
+def check_vector(name: str, vector, unit: bool = False, size: int = 3) -> np.ndarray:
+    """Return ``vector`` as a finite (size,) float64 array, normalised if ``unit``.
 
     Raises ValueError for another shape, non-finite values or, with ``unit``, a
     zero vector.
     """
     arr = np.asarray(vector)
-    if arr.shape != (3,):
-        raise ValueError(f"Expected {name} with shape (3,), got {arr.shape}")
+    if arr.shape != (size,):
+        raise ValueError(f"Expected {name} with shape ({size},), got {arr.shape}")
     if arr.dtype.kind not in "fiu":
         raise ValueError(f"Expected {name} with a numeric dtype, got {arr.dtype}")
     arr = arr.astype(np.float64)

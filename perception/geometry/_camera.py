@@ -1,10 +1,14 @@
 """Pinhole camera maths on NumPy arrays (OpenCV optical frame: x right, y down, z forward).
 
 Pixel coordinates are (u, v) = (column, row) with the centre of the top-left pixel at
-(0, 0), as OpenCV. Intrinsics are the row-major ``K`` of ``ipc.CameraInfo``.
+(0, 0), as OpenCV. Intrinsics are the row-major ``K`` of ``ipc.CameraInfo``; lens
+distortion ``D`` (OpenCV's and ROS CameraInfo's coefficients k1, k2, p1, p2 [, k3
+[, k4, k5, k6]]) goes through OpenCV.
 """
 
 from __future__ import annotations
+
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -12,20 +16,33 @@ import numpy as np
 from ipc.messages import CameraInfo, RGBDFrame
 
 
-def project(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
+def project(points_cam: np.ndarray, K: np.ndarray, D: np.ndarray | None = None) -> np.ndarray:
     """Project camera-frame points to pixels.
 
     points_cam : (N, 3) float, metres; points with z <= 0 project to NaN
     K : (3, 3) float intrinsics
+    D : distortion coefficients (0, 4, 5 or 8 of them), or None; all zero is a pinhole
     returns (N, 2) float64 pixel coordinates (u, v)
     """
     p = np.asarray(points_cam, dtype=np.float64)
+    if D is not None and np.any(D):
+        return _project_distorted(p, K, np.asarray(D, dtype=np.float64))
     z = p[:, 2]
     with np.errstate(divide="ignore", invalid="ignore"):
         inv_z = np.where(z > 0, 1.0 / z, np.nan)
     u = K[0, 0] * p[:, 0] * inv_z + K[0, 2]
     v = K[1, 1] * p[:, 1] * inv_z + K[1, 2]
     return np.stack([u, v], axis=1)
+
+
+def _project_distorted(p: np.ndarray, K: np.ndarray, D: np.ndarray) -> np.ndarray:
+    uv = np.full((len(p), 2), np.nan)
+    in_front = p[:, 2] > 0
+    if np.any(in_front):
+        projected, _ = cv2.projectPoints(p[in_front].reshape(-1, 1, 3), np.zeros(3), np.zeros(3),
+                                         np.asarray(K, dtype=np.float64), D)
+        uv[in_front] = projected.reshape(-1, 2)
+    return uv
 
 
 def rays(uv: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -41,14 +58,29 @@ def rays(uv: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 
 def backproject(uv: np.ndarray, depth_m: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """3D points at ``depth_m`` (metres along z) through pixels ``uv`` (N, 2); returns (N, 3)."""
+    """3D points at ``depth_m`` (N,) (metres along z) through pixels ``uv`` (N, 2); returns (N, 3) float64."""
     return rays(uv, K) * np.asarray(depth_m, dtype=np.float64)[:, None]
+
+
+def ray_lengths(K: np.ndarray, width: int, height: int) -> np.ndarray:
+    """(H, W) float32 length of the z = 1 ray through each pixel centre: a pixel's range
+    (distance from the camera) is its depth times this. Cached per camera."""
+    return _ray_lengths(float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]), int(width), int(height))
+
+
+@lru_cache(maxsize=4)
+def _ray_lengths(fx: float, fy: float, cx: float, cy: float, w: int, h: int) -> np.ndarray:
+    uu, vv = np.meshgrid(np.arange(w), np.arange(h))
+    lengths = np.sqrt(((uu - cx) / fx) ** 2 + ((vv - cy) / fy) ** 2 + 1.0).astype(np.float32)
+    lengths.flags.writeable = False  # shared between callers
+    return lengths
 
 
 def pixel_index(uv: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Nearest integer pixel of each (u, v) and whether it lies in the image.
 
-    returns (cols (N,) int, rows (N,) int, inside (N,) bool); cols and rows are clipped
+    uv : (N, 2) float pixel coordinates, NaN for none
+    returns (cols (N,) int64, rows (N,) int64, inside (N,) bool); cols and rows are clipped
     into the image so they can index it directly, check ``inside`` before trusting them.
     """
     finite = np.all(np.isfinite(uv), axis=1)
@@ -59,11 +91,20 @@ def pixel_index(uv: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np
     return np.clip(cols, 0, width - 1), np.clip(rows, 0, height - 1), inside
 
 
-class Undistorter:
-    """Removes lens distortion from frames of one camera, so the tracker can use a pure pinhole model.
+def crop_intrinsics(K: np.ndarray, x0: float, y0: float) -> np.ndarray:
+    """(3, 3) float64 intrinsics of the image window whose top-left pixel is (x0, y0) of the image of ``K``."""
+    cropped = np.array(K, dtype=np.float64)
+    cropped[0, 2] -= x0
+    cropped[1, 2] -= y0
+    return cropped
 
-    The maps are computed once per CameraInfo. Colour is resampled bilinearly, depth with the
-    nearest neighbour (interpolating across a depth edge would invent surfaces).
+
+class Undistorter:
+    """Removes lens distortion from frames of one camera, so that a pure pinhole model holds.
+
+    The maps are computed once per CameraInfo. Colour is resampled bilinearly, depth and
+    the occluder mask with the nearest neighbour (interpolating across a depth edge would
+    invent surfaces).
     """
 
     def __init__(self, camera: CameraInfo):

@@ -2,7 +2,15 @@ import cv2
 import numpy as np
 
 from ipc.messages import CameraInfo, RGBDFrame
-from perception.camera import Undistorter, backproject, pixel_index, project
+from perception.geometry import (
+    Undistorter,
+    backproject,
+    crop_intrinsics,
+    pixel_index,
+    project,
+    ray_lengths,
+    rays,
+)
 
 K = np.array([[500.0, 0, 320], [0, 480.0, 240], [0, 0, 1]])
 
@@ -43,3 +51,30 @@ def test_undistorter_moves_pixels_to_pinhole_positions():
     # no distortion: the same frame object comes back
     plain = RGBDFrame(rgb, depth, CameraInfo(640, 480, K))
     assert Undistorter(plain.camera)(plain) is plain
+
+
+def test_project_with_distortion_matches_opencv():
+    rng = np.random.default_rng(3)
+    points = rng.uniform([-0.3, -0.2, 0.8], [0.3, 0.2, 1.5], (20, 3))
+    K2 = np.array([[500.0, 0, 320], [0, 510.0, 240], [0, 0, 1]])
+    for D in (np.zeros(0), np.zeros(5), np.array([0.1, -0.05, 0.001, -0.002, 0.01]),
+              np.array([0.1, -0.05, 0.001, -0.002, 0.01, 0.02, -0.01, 0.005])):
+        expected, _ = cv2.projectPoints(points, np.zeros(3), np.zeros(3), K2, D if D.size else None)
+        np.testing.assert_allclose(project(points, K2, D), expected[:, 0], atol=1e-9)
+        behind = project(np.array([[0.0, 0.0, -1.0], [0.1, 0.0, 1.0]]), K2, D)
+        assert np.all(np.isnan(behind[0])) and np.all(np.isfinite(behind[1]))
+
+
+def test_ray_lengths_are_the_norms_of_the_rays():
+    lengths = ray_lengths(K, 64, 48)
+    vv, uu = np.mgrid[0:48, 0:64]
+    expected = np.linalg.norm(rays(np.column_stack([uu.ravel(), vv.ravel()]), K), axis=1).reshape(48, 64)
+    assert lengths.shape == (48, 64) and lengths.dtype == np.float32
+    np.testing.assert_allclose(lengths, expected, rtol=1e-6)
+
+
+def test_crop_intrinsics_moves_the_principal_point():
+    p = np.array([[0.1, -0.05, 1.2]])
+    cropped = crop_intrinsics(K, 100, 40)
+    np.testing.assert_allclose(project(p, cropped), project(p, K) - [100, 40], atol=1e-12)
+    assert K[0, 2] == 320  # the input is not changed
