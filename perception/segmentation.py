@@ -20,6 +20,7 @@ import cv2
 import numpy as np
 
 from perception.colour_model import ColourModel
+from perception.geometry import backproject
 from perception.raster import bounding_box
 
 log = logging.getLogger(__name__)
@@ -238,7 +239,7 @@ def find_object(depth_m: np.ndarray, K: np.ndarray, cfg: SegmentationConfig = Se
     if len(vv) < cfg.min_region_px:
         return np.zeros((h, w), bool)
     z = depth_m[vv, uu].astype(np.float64)
-    pts = np.column_stack([(uu - K[0, 2]) / K[0, 0] * z, (vv - K[1, 2]) / K[1, 1] * z, z])
+    pts = backproject(np.column_stack([uu, vv]), z, K)
     background = np.zeros((h, w), bool)
     remaining = np.ones(len(pts), bool)
     for _ in range(cfg.max_planes):

@@ -67,6 +67,7 @@ from perception.frame_checks import (
     spacing_for_area,
     spacing_px,
 )
+from perception.geometry import backproject
 from perception.segmentation import find_object
 from perception.tracker import MeshTracker, TrackerConfig, TrackingError, config_with
 
@@ -702,7 +703,7 @@ class RerunViewer:
         rows, cols = np.nonzero(np.isfinite(depth) & (depth > 0))
         z = depth[rows, cols].astype(np.float64)
         u, v = cols * s, rows * s
-        points = np.column_stack([(u - cam.cx) * z / cam.fx, (v - cam.cy) * z / cam.fy, z])
+        points = backproject(np.column_stack([u, v]), z, cam.K)
         rr.log("points", rr.Points3D(points, colors=frame.rgb[v, u]))
         if estimate is not None:
             rr.log("mesh", rr.Mesh3D(vertex_positions=estimate.vertices, triangle_indices=estimate.faces))

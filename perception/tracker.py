@@ -35,7 +35,7 @@ from perception.colour_model import ColourModel
 from perception.confidence import Assessment, assess
 from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, MotionPriorTerm
 from perception.features import make_correspondences, resolve_kind
-from perception.geometry import Undistorter, pixel_index, project, rays
+from perception.geometry import Undistorter, face_normals, pixel_index, project, rays
 from perception.initial_mesh import InitialisationError, mesh_from_mask, place_mesh, spacing_for
 from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
@@ -355,8 +355,7 @@ class MeshTracker:
     @staticmethod
     def _orient_faces(faces: np.ndarray, V: np.ndarray) -> np.ndarray:
         """Faces ordered so their normals face the camera at frame 0 (counter-clockwise as seen)."""
-        a, b, c = V[faces[:, 0]], V[faces[:, 1]], V[faces[:, 2]]
-        normal = np.cross(b - a, c - a).sum(axis=0)
+        normal = face_normals(V, faces).sum(axis=0)
         if normal @ (-V.mean(axis=0)) < 0:
             return faces[:, [0, 2, 1]].copy()
         return faces.copy()

@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from mpl_toolkits.mplot3d.art3d import Line3DCollection  # noqa: E402
 
-from perception.geometry import rays, unique_edges  # noqa: E402
+from perception.geometry import crop_intrinsics, rays, unique_edges  # noqa: E402
 from perception.overlay import draw_mesh  # noqa: E402
 
 # (elevation, azimuth) of matplotlib's 3D camera for the paper's Fig. 5 views, with the
@@ -146,9 +146,7 @@ def overlay_strip(path: Path, frames: list, estimates: list, picks: list[int], r
         x0, x1 = max(cols.min() - margin_px, 0), min(cols.max() + margin_px + 1, W)
     tiles = []
     for i in picks:
-        K = frames[i].camera.K.copy()
-        K[0, 2] -= x0
-        K[1, 2] -= y0
+        K = crop_intrinsics(frames[i].camera.K, x0, y0)
         tiles.append(draw_mesh(np.ascontiguousarray(frames[i].rgb[y0:y1, x0:x1]), estimates[i], K))
     h = 240
     tiles = [cv2.resize(t, (int(t.shape[1] * h / t.shape[0]), h), interpolation=cv2.INTER_AREA) for t in tiles]

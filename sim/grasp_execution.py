@@ -41,6 +41,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ipc.messages import GraspPlan
+from perception.geometry import check_transform
 from sim.ground_truth import closest_point_barycentric
 
 log = logging.getLogger(__name__)
@@ -130,9 +131,7 @@ def plan_to_world(plan: GraspPlan, T_world_cam: np.ndarray) -> GraspPose:
     returns GraspPose with position = T_world_cam @ [position, 1] and
     R_world_gripper = R_world_cam @ R_cam_gripper
     """
-    T = np.asarray(T_world_cam, dtype=np.float64)
-    if T.shape != (4, 4):
-        raise ValueError(f"plan_to_world: expected T_world_cam of shape (4, 4), got {T.shape}")
+    T = check_transform("T_world_cam", T_world_cam)
     R_cam_gripper = Rotation.from_quat(plan.quat_xyzw).as_matrix()
     return GraspPose(position=T[:3, :3] @ plan.position + T[:3, 3], R=T[:3, :3] @ R_cam_gripper,
                      opening_width_m=float(plan.opening_width_m))

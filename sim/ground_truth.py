@@ -21,7 +21,7 @@ import logging
 
 import numpy as np
 
-from perception.geometry import check_ids, check_points, face_areas
+from perception.geometry import check_ids, check_points, face_areas, pixel_index, project
 
 log = logging.getLogger(__name__)
 
@@ -188,15 +188,10 @@ def hidden_behind_occluder(points_cam: np.ndarray, occluder_mask: np.ndarray, oc
     if K.shape != (3, 3):
         raise ValueError(f"hidden_behind_occluder: expected K of shape (3, 3), got {K.shape}")
     H, W = mask.shape
-    z = pts[:, 2]
-    ahead = z > 1e-9
-    with np.errstate(divide="ignore", invalid="ignore"):
-        col = np.rint(K[0, 0] * pts[:, 0] / z + K[0, 2])
-        row = np.rint(K[1, 1] * pts[:, 1] / z + K[1, 2])
-    inside = ahead & (col >= 0) & (col < W) & (row >= 0) & (row < H)
+    cols, rows, inside = pixel_index(project(pts, K), W, H)
     hidden = np.zeros(len(pts), bool)
-    c, r = col[inside].astype(np.int64), row[inside].astype(np.int64)
-    hidden[inside] = mask[r, c] & (z[inside] > depth[r, c] + float(margin_m))
+    c, r = cols[inside], rows[inside]
+    hidden[inside] = mask[r, c] & (pts[inside, 2] > depth[r, c] + float(margin_m))
     return hidden
 
 

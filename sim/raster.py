@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 
 from ipc.messages import CameraInfo
-from perception.geometry import vertex_normals
+from perception.geometry import project, vertex_normals
 
 log = logging.getLogger(__name__)
 
@@ -116,9 +116,7 @@ def rasterise_mesh(points_cam: np.ndarray, faces: np.ndarray, tex_coords: np.nda
     mask = np.zeros((H, W), bool)
 
     z = pts[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = camera.fx * pts[:, 0] / z + camera.cx
-        v = camera.fy * pts[:, 1] / z + camera.cy
+    u, v = project(pts, camera.K).T
     f = f[np.all(z[f] > near_m, axis=1)]
     U, V = u[f], v[f]  # (F, 3) screen coordinates of each corner
     x0 = np.maximum(np.ceil(U.min(axis=1)), 0).astype(np.int64)

@@ -46,7 +46,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ipc.messages import CameraInfo, RGBDFrame
-from perception.geometry import look_at, transform_points
+from perception.geometry import frames_from_z_and_x, invert_transform, look_at, transform_points
 from sim.camera import SOLID_ID, Lighting, VirtualCamera
 from sim.cloth_mesh import ClothMesh, TShirtShape, rectangle_mesh, tshirt_mesh
 from sim.noise import DepthNoiseModel, add_colour_noise, add_depth_noise
@@ -357,11 +357,7 @@ def _printed(mesh: ClothMesh, rng: np.random.Generator, px_per_m: float = 900.0)
 def _gripper_rotation(approach, closing_hint) -> np.ndarray:
     """(3, 3) R_world_gripper: z along ``approach``, x along ``closing_hint`` made perpendicular to it."""
     z = np.asarray(approach, dtype=np.float64)
-    z = z / np.linalg.norm(z)
-    x = np.asarray(closing_hint, dtype=np.float64)
-    x = x - (x @ z) * z
-    x /= np.linalg.norm(x)
-    return np.column_stack([x, np.cross(z, x), z])
+    return frames_from_z_and_x((z / np.linalg.norm(z))[None], np.asarray(closing_hint, dtype=np.float64)[None])[0]
 
 
 def _trapezoid(tau_s: float, distance_m: float, speed_m_s: float, ramp_s: float) -> tuple[float, float]:
@@ -531,7 +527,7 @@ def occluder_sweep_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSp
 
     # the path runs from where the camera sees the occluder wholly beside the swaying cloth
     # to where it sees it wholly beyond the other side
-    T_cam_world = np.linalg.inv(T_world_cam)
+    T_cam_world = invert_transform(T_world_cam)
     cloth_cam = transform_points(T_cam_world, verts)
     reach = (sway_m + 0.03) / camera_distance
     cloth_x = (cloth_cam[:, 0] / cloth_cam[:, 2]).min() - reach, (cloth_cam[:, 0] / cloth_cam[:, 2]).max() + reach

@@ -29,6 +29,7 @@ from perception.geometry import (
     crop_intrinsics,
     face_normals,
     frame_along,
+    project,
     transform_points,
 )
 from sim.raster import MeshRaster, Shading, rasterise_mesh
@@ -233,8 +234,7 @@ def _window(points_cam: np.ndarray, camera: CameraInfo, near_m: float) -> tuple[
     ahead = points_cam[z > near_m]
     if len(ahead) == 0:
         return None
-    u = camera.fx * ahead[:, 0] / ahead[:, 2] + camera.cx
-    v = camera.fy * ahead[:, 1] / ahead[:, 2] + camera.cy
+    u, v = project(ahead, camera.K).T
     x0, x1 = max(int(np.floor(u.min())), 0), min(int(np.ceil(u.max())), camera.width - 1)
     y0, y1 = max(int(np.floor(v.min())), 0), min(int(np.ceil(v.max())), camera.height - 1)
     if x1 < x0 or y1 < y0:

@@ -14,6 +14,7 @@ import cv2
 import numpy as np
 
 from ipc.messages import GraspPlan, MeshEstimate
+from perception.geometry import project
 from perception.overlay import draw_mesh, outlined_text
 
 GREEN, ORANGE, RED = (40, 200, 60), (255, 150, 0), (230, 20, 20)
@@ -21,9 +22,7 @@ GREEN, ORANGE, RED = (40, 200, 60), (255, 150, 0), (230, 20, 20)
 
 def _pixels(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
     """(N, 2) int pixel positions of camera-frame points (N, 3), metres; points behind map far away."""
-    p = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
-    z = np.where(p[:, 2] > 1e-6, p[:, 2], np.nan)
-    uv = np.column_stack([K[0, 0] * p[:, 0] / z + K[0, 2], K[1, 1] * p[:, 1] / z + K[1, 2]])
+    uv = project(np.asarray(points_cam, dtype=np.float64).reshape(-1, 3), K)
     return np.nan_to_num(uv, nan=-1e4).round().astype(np.int64).clip(-10000, 10000)
 
 

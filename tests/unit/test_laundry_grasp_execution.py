@@ -38,7 +38,7 @@ def test_plan_to_world_applies_the_camera_pose():
 
 
 def test_plan_to_world_rejects_a_bad_transform():
-    with pytest.raises(ValueError, match=r"expected T_world_cam of shape \(4, 4\), got \(3, 3\)"):
+    with pytest.raises(ValueError, match=r"T_world_cam with shape \(4, 4\), got \(3, 3\)"):
         plan_to_world(plan([0, 0, 1], np.eye(3)), np.eye(3))
 
 
