@@ -21,8 +21,8 @@ from sim.cloth_mesh import (
     ClothMesh,
     TShirtShape,
     edge_strain,
-    rectangle_mesh,
-    tshirt_mesh,
+    rectangle_cloth,
+    tshirt_cloth,
 )
 from sim.ground_truth import (
     bind_to_surface,
@@ -59,9 +59,9 @@ __all__ = [
     "plain_texture",
     "poster_texture",
     "projection_matrix",
-    "rectangle_mesh",
+    "rectangle_cloth",
     "surface_points",
-    "tshirt_mesh",
+    "tshirt_cloth",
     "vertex_errors",
     "view_matrix",
 ]

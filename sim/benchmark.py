@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 from perception.sequence import SequenceWriter
-from sim.cloth_mesh import edge_strain, rectangle_mesh, tshirt_mesh
+from sim.cloth_mesh import edge_strain, rectangle_cloth, tshirt_cloth
 from sim.physics import ClothMaterial, ClothPhysics
 from sim.scenes import PAPER_SCENES, make_scene
 
@@ -30,9 +30,9 @@ def hanging_strain(kind: str, seconds: float = 1.0) -> np.ndarray:
     """(E,) edge strain of a cloth hung by two grippers for ``seconds``: a 0.6 x 0.45 m
     poster by its top corners, or a T-shirt by its shoulders, default material."""
     if kind == "poster":
-        mesh, held = rectangle_mesh(0.6, 0.45, spacing_m=0.025), ("top_left", "top_right")
+        mesh, held = rectangle_cloth(0.6, 0.45, spacing_m=0.025), ("top_left", "top_right")
     else:
-        mesh, held = tshirt_mesh(spacing_m=0.03), ("left_shoulder", "right_shoulder")
+        mesh, held = tshirt_cloth(spacing_m=0.03), ("left_shoulder", "right_shoulder")
     with ClothPhysics() as physics:
         verts = mesh.layout_points([-0.3, 0.0, 1.5], right=[1, 0, 0], down=[0, 0, -1])
         physics.add_cloth(mesh, verts, ClothMaterial())

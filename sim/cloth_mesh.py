@@ -142,7 +142,7 @@ def _check_size(name: str, value: float, minimum: float) -> float:
     return value
 
 
-def rectangle_mesh(width_m: float, height_m: float, spacing_m: float = 0.025) -> ClothMesh:
+def rectangle_cloth(width_m: float, height_m: float, spacing_m: float = 0.025) -> ClothMesh:
     """A rectangular cloth (poster, towel) as a regular grid.
 
     width_m, height_m : size in metres
@@ -150,9 +150,9 @@ def rectangle_mesh(width_m: float, height_m: float, spacing_m: float = 0.025) ->
         corners fall exactly on the rectangle's corners
     returns ClothMesh with landmarks ``top_left, top_right, bottom_left, bottom_right``
     """
-    spacing_m = _check_size("rectangle_mesh: spacing_m", spacing_m, 1e-3)
-    width_m = _check_size("rectangle_mesh: width_m", width_m, 2 * spacing_m)
-    height_m = _check_size("rectangle_mesh: height_m", height_m, 2 * spacing_m)
+    spacing_m = _check_size("rectangle_cloth: spacing_m", spacing_m, 1e-3)
+    width_m = _check_size("rectangle_cloth: width_m", width_m, 2 * spacing_m)
+    height_m = _check_size("rectangle_cloth: height_m", height_m, 2 * spacing_m)
     cols = max(1, round(width_m / spacing_m))
     rows = max(1, round(height_m / spacing_m))
     uv, faces = _grid_mesh(rows, cols, width_m / cols, height_m / rows)
@@ -270,7 +270,7 @@ def _distance_to_outline(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
     return np.min(np.linalg.norm(ap - t[..., None] * ab, axis=2), axis=1)
 
 
-def tshirt_mesh(shape: TShirtShape | None = None, spacing_m: float = 0.03) -> ClothMesh:
+def tshirt_cloth(shape: TShirtShape | None = None, spacing_m: float = 0.03) -> ClothMesh:
     """A T-shirt outline (body and sleeves, one layer: the front) as a triangle mesh.
 
     Points on a hexagonal lattice inside the outline (kept at least half a spacing away
@@ -284,12 +284,12 @@ def tshirt_mesh(shape: TShirtShape | None = None, spacing_m: float = 0.03) -> Cl
     left_hem, right_hem, left_cuff, right_cuff``
     """
     shape = shape or TShirtShape()
-    spacing_m = _check_size("tshirt_mesh: spacing_m", spacing_m, 1e-3)
+    spacing_m = _check_size("tshirt_cloth: spacing_m", spacing_m, 1e-3)
     outline = shape.outline()
     outline = outline - outline.min(axis=0)
     extent = outline.max(axis=0)
     if np.any(extent < 4 * spacing_m):
-        raise ValueError(f"tshirt_mesh: spacing_m={spacing_m} is too coarse for a {extent[0]:.2f}x{extent[1]:.2f} m shirt")
+        raise ValueError(f"tshirt_cloth: spacing_m={spacing_m} is too coarse for a {extent[0]:.2f}x{extent[1]:.2f} m shirt")
 
     row_step = spacing_m * np.sqrt(3.0) / 2.0
     rows = np.arange(0.0, extent[1] + row_step, row_step)
@@ -328,7 +328,7 @@ def tshirt_mesh(shape: TShirtShape | None = None, spacing_m: float = 0.03) -> Cl
         "left_cuff": _nearest(uv, 0.5 * (key[7] + key[8])),
         "left_shoulder": _nearest(uv, key[9]),
     }
-    log.debug("tshirt_mesh: %d vertices, %d faces", len(uv), len(faces))
+    log.debug("tshirt_cloth: %d vertices, %d faces", len(uv), len(faces))
     return ClothMesh(uv, faces, landmarks, name=f"T-shirt {shape.body_width_m:.2f}x{shape.body_length_m:.2f} m")
 
 

@@ -55,7 +55,7 @@ from perception.geometry import (
     transform_points,
 )
 from sim.camera import Lighting, VirtualCamera
-from sim.cloth_mesh import ClothMesh, TShirtShape, rectangle_mesh, tshirt_mesh
+from sim.cloth_mesh import ClothMesh, TShirtShape, rectangle_cloth, tshirt_cloth
 from sim.noise import DepthNoiseModel, add_colour_noise, add_depth_noise
 from sim.physics import ClothMaterial, ClothPhysics, Gripper
 from sim.scenes import Box, kinect_camera
@@ -89,7 +89,7 @@ def _check_seed(seed) -> int:
 
 
 def rectangle_corners_uv(width_m: float, height_m: float) -> tuple[np.ndarray, tuple]:
-    """The four corners of a ``rectangle_mesh`` in material coordinates.
+    """The four corners of a ``rectangle_cloth`` in material coordinates.
 
     returns corners (4, 2) float64 metres (u right, v down from the top-left) and their
     names ``("top_left", "top_right", "bottom_right", "bottom_left")``
@@ -100,11 +100,11 @@ def rectangle_corners_uv(width_m: float, height_m: float) -> tuple[np.ndarray, t
 
 
 def tshirt_corners_uv(shape: TShirtShape) -> tuple[np.ndarray, tuple]:
-    """Hem corners and sleeve-end corners of a ``tshirt_mesh(shape)`` in material coordinates.
+    """Hem corners and sleeve-end corners of a ``tshirt_cloth(shape)`` in material coordinates.
 
     The points come from the outline's construction (``TShirtShape.outline`` lists the
     neck, then the right shoulder, cuff top, cuff bottom, armpit and hem, then the same
-    on the left in reverse), shifted as ``tshirt_mesh`` shifts the outline so that its
+    on the left in reverse), shifted as ``tshirt_cloth`` shifts the outline so that its
     bounding box starts at (0, 0). The neck's corners are left out: a neck opening is
     not what a laundry robot calls a corner of a shirt.
 
@@ -308,12 +308,12 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
     size_draw = rng.uniform(0.0, 1.0, 2)
     if kind == "towel":
         width, height = 0.35 + 0.25 * size_draw[0], 0.30 + 0.20 * size_draw[1]
-        mesh = rectangle_mesh(width, height, spacing_m=CLOTH_SPACING_M)
+        mesh = rectangle_cloth(width, height, spacing_m=CLOTH_SPACING_M)
         corners_uv, names = rectangle_corners_uv(width, height)
         material = ClothMaterial(mass_per_area_kg_m2=0.3, self_collision=True)
     else:
         shape = TShirtShape().scaled(0.60 + 0.25 * size_draw[0])
-        mesh = tshirt_mesh(shape, spacing_m=CLOTH_SPACING_M)
+        mesh = tshirt_cloth(shape, spacing_m=CLOTH_SPACING_M)
         corners_uv, names = tshirt_corners_uv(shape)
         material = ClothMaterial(mass_per_area_kg_m2=0.18, self_collision=True)
     texture = _texture(mesh, rng, printed)

@@ -48,7 +48,7 @@ from scipy.spatial.transform import Rotation
 from ipc.messages import CameraInfo, RGBDFrame
 from perception.geometry import frames_from_z_and_x, invert_transform, look_at, transform_points
 from sim.camera import SOLID_ID, Lighting, VirtualCamera
-from sim.cloth_mesh import ClothMesh, TShirtShape, rectangle_mesh, tshirt_mesh
+from sim.cloth_mesh import ClothMesh, TShirtShape, rectangle_cloth, tshirt_cloth
 from sim.noise import DepthNoiseModel, add_colour_noise, add_depth_noise
 from sim.physics import ClothMaterial, ClothPhysics
 from sim.robot_drawing import GripperLook
@@ -193,7 +193,7 @@ def poster_bend_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
     0.6 rad each so the poster curls away from the camera, peaking at t = 2 s (frame 60).
     """
     scale = rng.uniform(0.9, 1.1)
-    mesh = rectangle_mesh(0.60 * scale, 0.45 * scale, spacing_m=0.025)
+    mesh = rectangle_cloth(0.60 * scale, 0.45 * scale, spacing_m=0.025)
     verts = _hang_facing_camera(mesh, np.array([0.0, 0.0, 1.35]))
     width = mesh.size_m[0]
     grasps = (mesh.landmarks["top_left"], mesh.landmarks["top_right"])
@@ -219,7 +219,7 @@ def poster_bend_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
 
 
 def _shirt(rng: np.random.Generator) -> ClothMesh:
-    return tshirt_mesh(TShirtShape().scaled(rng.uniform(0.9, 1.1)), spacing_m=0.03)
+    return tshirt_cloth(TShirtShape().scaled(rng.uniform(0.9, 1.1)), spacing_m=0.03)
 
 
 def shirt_chair_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
@@ -306,7 +306,7 @@ def towel_sway_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
     and come up to 40 % closer over a 4 s cycle, so the towel swings and folds.
     """
     scale = rng.uniform(0.9, 1.1)
-    mesh = rectangle_mesh(0.60 * scale, 0.50 * scale, spacing_m=0.025)
+    mesh = rectangle_cloth(0.60 * scale, 0.50 * scale, spacing_m=0.025)
     verts = _hang_facing_camera(mesh, np.array([0.0, 0.0, 1.4]))
     width = mesh.size_m[0]
     grasps = (mesh.landmarks["top_left"], mesh.landmarks["top_right"])
@@ -478,7 +478,7 @@ def occluder_sweep_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSp
     sees them. The camera stands 1.1-1.35 m in front of the cloth.
     """
     width, height = rng.uniform(0.45, 0.75), rng.uniform(0.35, 0.60)
-    mesh = rectangle_mesh(width, height, spacing_m=0.025)
+    mesh = rectangle_cloth(width, height, spacing_m=0.025)
     top_z = rng.uniform(1.30, 1.50)
     verts = _hang_facing_camera(mesh, np.array([0.0, 0.0, top_z]))
     grasps = (mesh.landmarks["top_left"], mesh.landmarks["top_right"])
@@ -575,7 +575,7 @@ def gripper_corner_move_spec(rng: np.random.Generator, camera: CameraInfo) -> Sc
     the cloth's middle and 25-55 cm above it, so the arm crosses in front of the cloth.
     """
     width, height = rng.uniform(0.40, 0.65), rng.uniform(0.35, 0.55)
-    mesh = rectangle_mesh(width, height, spacing_m=0.025)
+    mesh = rectangle_cloth(width, height, spacing_m=0.025)
     top_z = rng.uniform(1.40, 1.55)
     verts = _hang_facing_camera(mesh, np.array([0.0, 0.0, top_z]))
     holders = (mesh.landmarks["top_left"], mesh.landmarks["top_right"])
@@ -641,7 +641,7 @@ def table_lift_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
         Box((*TABLE_HALF_XY_M, 0.02), (0.0, 0.0, table_top - 0.02), (grey, grey, grey + 0.03, 1.0)),
     )
     width, height = rng.uniform(0.30, 0.42), rng.uniform(0.25, 0.34)
-    mesh = rectangle_mesh(width, height, spacing_m=0.025)
+    mesh = rectangle_cloth(width, height, spacing_m=0.025)
     yaw = rng.uniform(-0.6, 0.6)
     right, down = np.array([np.cos(yaw), np.sin(yaw), 0.0]), np.array([np.sin(yaw), -np.cos(yaw), 0.0])
     centre = np.array([rng.uniform(-0.08, 0.08), rng.uniform(-0.05, 0.05), table_top + 0.008])

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from perception.geometry import boundary_edges
-from sim.cloth_mesh import TShirtShape, rectangle_mesh, tshirt_mesh
+from sim.cloth_mesh import TShirtShape, rectangle_cloth, tshirt_cloth
 from sim.laundry import (
     CLOTH_KINDS,
     INITIAL_STATES,
@@ -35,7 +35,7 @@ def convex_corners(uv_polygon, max_angle_deg=135.0):
 
 
 def test_rectangle_outline_and_corners_match_its_geometry():
-    mesh = rectangle_mesh(0.5, 0.4, spacing_m=0.03)
+    mesh = rectangle_cloth(0.5, 0.4, spacing_m=0.03)
     segments = mesh.uv_m[boundary_edges(mesh.faces)]
     assert np.sum(np.linalg.norm(segments[:, 1] - segments[:, 0], axis=1)) == pytest.approx(2 * (0.5 + 0.4))
     on_outline = distance_to_segments(mesh.uv_m, segments) < 1e-12
@@ -50,7 +50,7 @@ def test_rectangle_outline_and_corners_match_its_geometry():
 @pytest.mark.parametrize("scale", [0.6, 0.72, 0.85])
 def test_tshirt_corners_are_its_sharp_outline_corners_except_the_neck(scale):
     shape = TShirtShape().scaled(scale)
-    mesh = tshirt_mesh(shape, spacing_m=0.03)
+    mesh = tshirt_cloth(shape, spacing_m=0.03)
     corners, names = tshirt_corners_uv(shape)
     assert len(names) == 6 and {"left_hem", "right_hem", "left_cuff_top", "right_cuff_bottom"} <= set(names)
     # Every true corner is a vertex of the mesh, on its outline.

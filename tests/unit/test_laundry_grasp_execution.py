@@ -5,7 +5,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from ipc.messages import GraspPlan
-from sim.cloth_mesh import rectangle_mesh
+from sim.cloth_mesh import rectangle_cloth
 from sim.grasp_execution import (
     ExecutionConfig,
     GraspPose,
@@ -61,7 +61,7 @@ def test_sideways_approach_stops_at_the_plan_position():
 
 def flat_cloth():
     """A 0.3 x 0.2 m cloth, 3 cm grid, lying in the plane z = 0 with uv = (x, y)."""
-    mesh = rectangle_mesh(0.3, 0.2, spacing_m=0.03)
+    mesh = rectangle_cloth(0.3, 0.2, spacing_m=0.03)
     return mesh, np.column_stack([mesh.uv_m, np.zeros(mesh.n_vertices)])
 
 

@@ -11,7 +11,7 @@ from perception.geometry import (
     transform_points,
 )
 from sim.camera import VirtualCamera
-from sim.cloth_mesh import rectangle_mesh
+from sim.cloth_mesh import rectangle_cloth
 from sim.opengl import depth_from_zbuffer, projection_matrix, view_matrix
 from sim.physics import ClothMaterial, ClothPhysics
 from sim.scenes import kinect_camera
@@ -81,7 +81,7 @@ def test_pybullet_draws_edges_where_K_projects_them(cx, cy):
 @pytest.fixture(scope="module")
 def hanging():
     """A 0.6 x 0.45 m cloth hanging from two corners in front of a wall, rendered at 640x480."""
-    mesh = rectangle_mesh(0.6, 0.45, spacing_m=0.025)
+    mesh = rectangle_cloth(0.6, 0.45, spacing_m=0.025)
     verts = mesh.layout_points([-0.3, 0.0, 1.4], right=[1, 0, 0], down=[0, 0, -1])
     physics = ClothPhysics()
     physics.add_box([2.0, 0.02, 1.5], [0.0, 0.6, 1.5], rgba=(0.8, 0.8, 0.7, 1))

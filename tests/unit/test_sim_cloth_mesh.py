@@ -9,8 +9,8 @@ from sim.cloth_mesh import (
     TShirtShape,
     edge_strain,
     points_in_polygon,
-    rectangle_mesh,
-    tshirt_mesh,
+    rectangle_cloth,
+    tshirt_cloth,
     write_obj,
 )
 from sim.textures import plain_texture, poster_texture
@@ -23,7 +23,7 @@ def _signed_areas(uv, faces):
 
 
 def test_rectangle_has_exact_size_corners_and_area():
-    mesh = rectangle_mesh(0.6, 0.45, spacing_m=0.025)
+    mesh = rectangle_cloth(0.6, 0.45, spacing_m=0.025)
     assert mesh.uv_m.shape == (25 * 19, 2)
     assert mesh.faces.shape == (24 * 18 * 2, 3)
     assert mesh.size_m == pytest.approx((0.6, 0.45))
@@ -35,7 +35,7 @@ def test_rectangle_has_exact_size_corners_and_area():
 
 
 def test_rectangle_boundary_is_the_outline():
-    mesh = rectangle_mesh(0.3, 0.2, spacing_m=0.05)
+    mesh = rectangle_cloth(0.3, 0.2, spacing_m=0.05)
     b = boundary_vertices(mesh.faces)
     uv = mesh.uv_m[b]
     on_edge = np.isclose(uv[:, 0], 0) | np.isclose(uv[:, 0], 0.3) | np.isclose(uv[:, 1], 0) | np.isclose(uv[:, 1], 0.2)
@@ -45,7 +45,7 @@ def test_rectangle_boundary_is_the_outline():
 
 def test_tshirt_mesh_follows_its_outline():
     shape = TShirtShape()
-    mesh = tshirt_mesh(shape, spacing_m=0.03)
+    mesh = tshirt_cloth(shape, spacing_m=0.03)
     outline = shape.outline()
     outline = outline - outline.min(axis=0)
     # every triangle lies inside the outline, and the mesh covers its area
@@ -69,7 +69,7 @@ def test_tshirt_mesh_follows_its_outline():
 def test_tshirt_mesh_has_no_slivers_along_its_outline(scale):
     # Delaunay makes zero-area triangles between collinear outline points; they must be gone
     spacing = 0.03
-    mesh = tshirt_mesh(TShirtShape().scaled(scale), spacing_m=spacing)
+    mesh = tshirt_cloth(TShirtShape().scaled(scale), spacing_m=spacing)
     assert np.abs(_signed_areas(mesh.uv_m, mesh.faces)).min() > 0.1 * spacing**2
 
 
@@ -86,7 +86,7 @@ def test_points_in_polygon_unit_square():
 
 
 def test_edge_strain_known_stretch():
-    mesh = rectangle_mesh(0.2, 0.1, spacing_m=0.05)
+    mesh = rectangle_cloth(0.2, 0.1, spacing_m=0.05)
     flat = np.c_[mesh.uv_m, np.zeros(mesh.n_vertices)]
     np.testing.assert_allclose(edge_strain(flat, mesh.edges(), mesh.rest_lengths()), 0.0, atol=1e-12)
     stretched = flat * np.array([1.1, 1.1, 1.0])
@@ -108,13 +108,13 @@ def test_mesh_checks_inputs():
     with pytest.raises(ValueError, match=r"ClothMesh.faces with vertex ids in \[0, 3\)"):
         ClothMesh(np.zeros((3, 2)), np.array([[0, 1, 3]]))
     with pytest.raises(ValueError, match="spacing_m"):
-        rectangle_mesh(0.6, 0.45, spacing_m=0.0)
+        rectangle_cloth(0.6, 0.45, spacing_m=0.0)
     with pytest.raises(ValueError, match="too coarse"):
-        tshirt_mesh(spacing_m=0.3)
+        tshirt_cloth(spacing_m=0.3)
 
 
 def test_layout_points_places_the_flat_cloth():
-    mesh = rectangle_mesh(0.4, 0.2, spacing_m=0.1)
+    mesh = rectangle_cloth(0.4, 0.2, spacing_m=0.1)
     pts = mesh.layout_points([1.0, 2.0, 3.0], right=[1, 0, 0], down=[0, 0, -1])
     np.testing.assert_allclose(pts[mesh.landmarks["top_left"]], [1.0, 2.0, 3.0])
     np.testing.assert_allclose(pts[mesh.landmarks["bottom_right"]], [1.4, 2.0, 2.8])
@@ -123,14 +123,14 @@ def test_layout_points_places_the_flat_cloth():
 
 
 def test_texture_coords_map_top_left_to_image_top_left():
-    mesh = rectangle_mesh(0.4, 0.2, spacing_m=0.1)
+    mesh = rectangle_cloth(0.4, 0.2, spacing_m=0.1)
     tc = mesh.texture_coords()
     np.testing.assert_allclose(tc[mesh.landmarks["top_left"]], [0.0, 1.0])  # OBJ t is up
     np.testing.assert_allclose(tc[mesh.landmarks["bottom_right"]], [1.0, 0.0])
 
 
 def test_write_obj_keeps_vertex_order(tmp_path):
-    mesh = rectangle_mesh(0.2, 0.1, spacing_m=0.05)
+    mesh = rectangle_cloth(0.2, 0.1, spacing_m=0.05)
     pts = mesh.layout_points([0, 0, 1], [1, 0, 0], [0, 0, -1])
     path = tmp_path / "c.obj"
     write_obj(path, pts, mesh.faces, mesh.texture_coords())

@@ -5,7 +5,7 @@ import pytest
 
 from perception.geometry import face_areas
 from sim import _reference
-from sim.cloth_mesh import rectangle_mesh
+from sim.cloth_mesh import rectangle_cloth
 from sim.ground_truth import (
     bind_to_surface,
     closest_point_barycentric,
@@ -19,7 +19,7 @@ from sim.ground_truth import (
 
 
 def _plane(width=0.6, height=0.4, spacing=0.1):
-    mesh = rectangle_mesh(width, height, spacing_m=spacing)
+    mesh = rectangle_cloth(width, height, spacing_m=spacing)
     return np.c_[mesh.uv_m, np.zeros(mesh.n_vertices)], mesh.faces
 
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from ipc.messages import CameraInfo, MeshEstimate, RGBDFrame
-from sim.cloth_mesh import rectangle_mesh
+from sim.cloth_mesh import rectangle_cloth
 from sim.evaluation import SceneRecording
 from sim.ground_truth import hidden_behind_occluder
 from sim.handled_evaluation import CONFIDENT, WRONG_MM, cloth_hidden_fraction, score_run
@@ -17,7 +17,7 @@ T = 4
 def _recording():
     """A flat 0.6 x 0.4 m cloth 1.5 m away, sliding right 1 cm a frame; an occluder at 1 m
     over image columns 40-59 in frames 1 and 2 only."""
-    mesh = rectangle_mesh(0.6, 0.4, spacing_m=0.05)
+    mesh = rectangle_cloth(0.6, 0.4, spacing_m=0.05)
     flat = np.c_[mesh.uv_m - [0.3, 0.2], np.full(mesh.n_vertices, 1.5)]
     gt = np.stack([flat + [0.01 * t, 0.0, 0.0] for t in range(T)])
     frames = [RGBDFrame(rgb=np.zeros((H, W, 3), np.uint8), depth_m=np.ones((H, W), np.float32), camera=CAMERA,
@@ -91,7 +91,7 @@ def test_confident_wrong_frames_and_lost_flags_are_counted():
 
 def test_a_rebuilt_mesh_is_bound_again_where_it_changes():
     rec, mesh = _recording()
-    small = rectangle_mesh(0.3, 0.2, spacing_m=0.05)
+    small = rectangle_cloth(0.3, 0.2, spacing_m=0.05)
     small_flat = np.c_[small.uv_m - [0.15, 0.1], np.full(small.n_vertices, 1.5)]
     estimates = [_estimate(rec.gt_vertices[0], mesh), _estimate(rec.gt_vertices[1] + [0, 0, 0.1], mesh)]
     estimates += [_estimate(small_flat + [0.01 * t, 0.0, 0.0], small) for t in (2, 3)]  # re-acquired, on the cloth

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from sim.cloth_mesh import edge_strain, rectangle_mesh, tshirt_mesh
+from sim.cloth_mesh import edge_strain, rectangle_cloth, tshirt_cloth
 from sim.physics import ClothMaterial, ClothPhysics, slerp
 
 pytest.importorskip("pybullet")
@@ -31,9 +31,9 @@ def _hang(mesh, corners, seconds):
 @pytest.mark.parametrize("kind", ["poster", "tshirt"])
 def test_hanging_cloth_barely_stretches_and_settles(kind):
     if kind == "poster":
-        mesh, corners = rectangle_mesh(0.6, 0.45, spacing_m=0.025), ("top_left", "top_right")
+        mesh, corners = rectangle_cloth(0.6, 0.45, spacing_m=0.025), ("top_left", "top_right")
     else:
-        mesh, corners = tshirt_mesh(spacing_m=0.03), ("left_shoulder", "right_shoulder")
+        mesh, corners = tshirt_cloth(spacing_m=0.03), ("left_shoulder", "right_shoulder")
     physics, _ = _hang(mesh, corners, 1.0)
     with physics:
         before = physics.cloth_vertices()
@@ -49,7 +49,7 @@ def test_hanging_cloth_barely_stretches_and_settles(kind):
 
 
 def _hang_by_one_corner():
-    mesh = rectangle_mesh(0.4, 0.3, spacing_m=0.03)
+    mesh = rectangle_cloth(0.4, 0.3, spacing_m=0.03)
     physics, _ = _hang(mesh, ("top_left",), 1.5)
     return physics
 
@@ -87,7 +87,7 @@ def test_stop_cloth_stops_every_node():
 
 
 def test_loaded_nodes_keep_the_mesh_order():
-    mesh = rectangle_mesh(0.2, 0.1, spacing_m=0.05)
+    mesh = rectangle_cloth(0.2, 0.1, spacing_m=0.05)
     verts = mesh.layout_points([0.0, 0.0, 1.0], right=[0, 1, 0], down=[0, 0, -1])
     with ClothPhysics() as physics:
         physics.add_cloth(mesh, verts, ClothMaterial())
@@ -97,7 +97,7 @@ def test_loaded_nodes_keep_the_mesh_order():
 
 
 def test_gripper_carries_turns_and_releases_the_cloth():
-    mesh = rectangle_mesh(0.3, 0.2, spacing_m=0.025)
+    mesh = rectangle_cloth(0.3, 0.2, spacing_m=0.025)
     physics, (gripper,) = _hang(mesh, ("top_left",), 0.2)
     with physics:
         held = gripper.held_nodes
@@ -125,7 +125,7 @@ def test_gripper_carries_turns_and_releases_the_cloth():
 
 def test_gripper_close_on_lifts_cloth_from_the_floor():
     """Issue 5's use: a gripper closes on nodes of a lying cloth and lifts them."""
-    mesh = rectangle_mesh(0.3, 0.2, spacing_m=0.025)
+    mesh = rectangle_cloth(0.3, 0.2, spacing_m=0.025)
     verts = mesh.layout_points([0.0, 0.0, 0.02], right=[1, 0, 0], down=[0, 1, 0])
     with ClothPhysics() as physics:
         physics.add_box([1.0, 1.0, 0.01], [0.0, 0.0, -0.01])
@@ -165,7 +165,7 @@ def test_rigid_signature_changes_when_a_box_moves():
 
 
 def test_material_derives_mass_and_springs_from_the_mesh():
-    mesh = rectangle_mesh(0.5, 0.4, spacing_m=0.05)
+    mesh = rectangle_cloth(0.5, 0.4, spacing_m=0.05)
     material = ClothMaterial(mass_per_area_kg_m2=0.2, stiffness_number=1.5, damping_number=2.0)
     assert material.total_mass_kg(mesh) == pytest.approx(0.2 * 0.5 * 0.4)
     node_mass = 0.04 / mesh.n_vertices
@@ -207,6 +207,6 @@ def test_physics_checks_arguments():
             physics.cloth_vertices()
         with pytest.raises(ValueError, match=r"half_extents_m with shape \(3,\), got \(2,\)"):
             physics.add_box([1.0, 1.0], [0, 0, 0])
-        mesh = rectangle_mesh(0.2, 0.1, spacing_m=0.05)
+        mesh = rectangle_cloth(0.2, 0.1, spacing_m=0.05)
         with pytest.raises(ValueError, match=r"vertices_world of shape \(15, 3\), got \(3, 3\)"):
             physics.add_cloth(mesh, np.zeros((3, 3)), ClothMaterial())

@@ -6,7 +6,7 @@ import pytest
 from ipc.messages import CameraInfo
 from perception.geometry import vertex_normals
 from sim import _reference
-from sim.cloth_mesh import rectangle_mesh
+from sim.cloth_mesh import rectangle_cloth
 from sim.raster import Shading, rasterise_mesh
 
 CAM = CameraInfo(width=80, height=60, K=np.array([[70.0, 0, 39.5], [0, 70.0, 29.5], [0, 0, 1]]))
@@ -15,7 +15,7 @@ LIGHT = Shading(light_dir_cam=np.array([0.0, 0.0, -1.0]), ambient=0.5, diffuse=0
 
 def _sheet(z=1.0, bend=0.0, width=0.6, height=0.4):
     """A sheet facing the camera, centred on the optical axis, optionally bent about y."""
-    mesh = rectangle_mesh(width, height, spacing_m=0.05)
+    mesh = rectangle_cloth(width, height, spacing_m=0.05)
     x = mesh.uv_m[:, 0] - width / 2
     y = mesh.uv_m[:, 1] - height / 2
     return mesh, np.c_[x, y, z + bend * x**2]
