@@ -38,7 +38,6 @@ from perception.sources import (
     RealSenseSource,
     RosbagSource,
     SequenceSource,
-    SimSource,
     SourceError,
     run_publisher,
 )
@@ -109,12 +108,12 @@ def build_parser() -> argparse.ArgumentParser:
 def open_source(args):
     """The FrameSource the arguments ask for."""
     if args.source == "sim":
-        source = SimSource(args.scene, seed=args.seed, noise=not args.no_noise, width=args.width,
-                           height=args.height, n_frames=args.frames, occluders=not args.no_occluders,
-                           known_occluders=args.known_occluders)
-        if args.frames is None:
-            source.n_frames = source.script_frames
-        return source
+        from sim.frame_source import SceneSource  # PyBullet only for simulated frames
+        from sim.scenes import make_scene
+
+        scene = make_scene(args.scene, seed=args.seed, noise=not args.no_noise, width=args.width, height=args.height,
+                           occluders=not args.no_occluders, known_occluders=args.known_occluders)
+        return SceneSource(scene, n_frames=args.frames or scene.n_frames)
     if args.source == "sequence":
         return SequenceSource(args.path)
     if args.source == "realsense":

@@ -42,7 +42,6 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import Self
 
 import numpy as np
 
@@ -56,8 +55,9 @@ from perception.geometry import (
 )
 from sim.camera import Lighting, VirtualCamera
 from sim.cloth_mesh import ClothMesh, TShirtShape, rectangle_cloth, tshirt_cloth
-from sim.noise import DepthNoiseModel, add_colour_noise, add_depth_noise
+from sim.noise import DepthNoiseModel
 from sim.physics import ClothMaterial, ClothPhysics, Gripper
+from sim.scene import PhysicsScene, check_seed
 from sim.scenes import Box, kinect_camera
 from sim.textures import plain_texture, poster_texture, random_plain_colour
 
@@ -77,12 +77,6 @@ TABLE_THICKNESS_M = 0.04
 HOLDER_RADIUS_M = 0.045
 #: Half extents of the holder's visible body (a closed gripper's fingers around the corner), metres.
 HOLDER_HALF_EXTENTS_M = (0.025, 0.025, 0.04)
-
-
-def _check_seed(seed) -> int:
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"expected a non-negative integer seed, got {seed!r}")
-    return int(seed)
 
 
 # ----------------------------------------------------------------------------- ground truth (pure)
@@ -291,7 +285,7 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
     state, cloth_kind : force the initial state or cloth kind (tests, demonstrations);
         everything else is still drawn from the seed
     """
-    seed = _check_seed(seed)
+    seed = check_seed(seed)
     if state is not None and state not in INITIAL_STATES:
         raise ValueError(f"unknown initial state {state!r}; expected one of {', '.join(INITIAL_STATES)}")
     if cloth_kind is not None and cloth_kind not in CLOTH_KINDS:
@@ -379,30 +373,40 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
 # ----------------------------------------------------------------------------- scene (PyBullet)
 
 
-class LaundryScene:
+class LaundryScene(PhysicsScene):
     """A laundry scene running in PyBullet: settled cloth, table, camera with noise.
 
     spec : LaundrySpec (``laundry_spec(seed)``)
     noise : add sensor noise to rendered frames (its random stream comes from the seed)
     noise_model : DepthNoiseModel, Kinect-like by default
 
-    After construction the cloth has settled for ``spec.settle_s`` (and been brought to
-    rest for ``spec.rest_s``); ``step(dt)`` advances
-    the world, ``render()`` returns what the sensor sees now, ``render_empty()`` the same
-    view without the cloth (a reference picture of the empty table), and the accessors
-    below give the ground truth. Use as a context manager or call ``close()``.
+    A ``sim.scene.Scene``. After construction (and ``reset``) the cloth has settled for
+    ``spec.settle_s`` (and been brought to rest for ``spec.rest_s``): frame 0. ``step()``
+    advances one frame, ``render()`` returns what the sensor sees now, ``render_empty()``
+    the same view without the cloth (a reference picture of the empty table), and the
+    accessors below give the ground truth. Use as a context manager or call ``close()``.
     """
 
     def __init__(self, spec: LaundrySpec, noise: bool = True, noise_model: DepthNoiseModel | None = None):
         self.spec = spec
+        self.name = f"laundry:{spec.seed}"
         self.noise = bool(noise)
         self.noise_model = noise_model or DepthNoiseModel()
         self.camera = spec.camera
         self.T_world_cam = np.asarray(spec.T_world_cam, dtype=np.float64)
-        _, noise_seq = np.random.SeedSequence(spec.seed).spawn(2)
-        self._noise_rng = np.random.default_rng(noise_seq)
         if isinstance(spec.substeps, bool) or int(spec.substeps) != spec.substeps or spec.substeps < 1:
             raise ValueError(f"LaundryScene: expected spec.substeps a positive integer, got {spec.substeps!r}")
+        self.physics: ClothPhysics | None = None
+        self.reset()
+        log.info("laundry scene %s", spec.describe())
+
+    def reset(self) -> None:
+        """Build the world from the spec again and let the cloth settle: frame 0, and the same
+        frames (noise included) after it as the first time."""
+        self.close()
+        spec = self.spec
+        _, noise_seq = np.random.SeedSequence(spec.seed).spawn(2)
+        self._noise_rng = np.random.default_rng(noise_seq)
         self.physics = ClothPhysics(timestep_s=spec.timestep_s)
         try:
             for box in spec.boxes:
@@ -424,35 +428,13 @@ class LaundryScene:
             raise
         self.frame_index = 0
         self._last_mask: np.ndarray | None = None
-        log.info("laundry scene %s", spec.describe())
 
     @classmethod
     def from_seed(cls, seed: int, noise: bool = True, **spec_options) -> LaundryScene:
         """``LaundryScene(laundry_spec(seed, **spec_options), noise)``."""
         return cls(laundry_spec(seed, **spec_options), noise=noise)
 
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def close(self) -> None:
-        """Disconnect PyBullet (idempotent)."""
-        if getattr(self, "physics", None) is not None:
-            self.physics.close()
-            self.physics = None
-
     # -- time ---------------------------------------------------------------------------------
-
-    @property
-    def fps(self) -> float:
-        return 30.0
-
-    @property
-    def time_s(self) -> float:
-        """Seconds since frame 0."""
-        return self.frame_index / self.fps
 
     def step(self) -> None:
         """Advance one frame period (1/30 s)."""
@@ -467,9 +449,7 @@ class LaundryScene:
     # -- sensor -------------------------------------------------------------------------------
 
     def _frame(self, rgb: np.ndarray, depth: np.ndarray) -> RGBDFrame:
-        if self.noise:
-            depth = add_depth_noise(depth, self.camera.K, self.noise_model, self._noise_rng)
-            rgb = add_colour_noise(rgb, self.noise_model.colour_sigma, self._noise_rng)
+        rgb, depth = self._sensed(rgb, depth)
         return RGBDFrame(rgb=rgb, depth_m=depth, camera=self.camera, timestamp_s=self.time_s, seq=self.frame_index)
 
     def render(self) -> RGBDFrame:
@@ -513,24 +493,6 @@ class LaundryScene:
         return self._last_mask
 
     # -- ground truth -------------------------------------------------------------------------
-
-    @property
-    def faces(self) -> np.ndarray:
-        """(F, 3) int64 cloth faces."""
-        return self.spec.cloth.faces
-
-    @property
-    def uv_m(self) -> np.ndarray:
-        """(V, 2) float64 material coordinates of the cloth vertices, metres."""
-        return self.spec.cloth.uv_m
-
-    def cloth_vertices_world(self) -> np.ndarray:
-        """(V, 3) float64 cloth vertices now, metres, world frame."""
-        return self.physics.cloth_vertices()
-
-    def cloth_vertices_cam(self) -> np.ndarray:
-        """(V, 3) float64 cloth vertices now, metres, camera optical frame."""
-        return self.virtual_camera.world_to_camera(self.physics.cloth_vertices())
 
     def corner_vertices(self) -> np.ndarray:
         """(C,) int64 cloth vertex at each true corner (the corners are mesh vertices)."""

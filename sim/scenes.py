@@ -49,9 +49,10 @@ from ipc.messages import CameraInfo, RGBDFrame
 from perception.geometry import frames_from_z_and_x, invert_transform, look_at, transform_points
 from sim.camera import SOLID_ID, Lighting, VirtualCamera
 from sim.cloth_mesh import ClothMesh, TShirtShape, rectangle_cloth, tshirt_cloth
-from sim.noise import DepthNoiseModel, add_colour_noise, add_depth_noise
+from sim.noise import DepthNoiseModel
 from sim.physics import ClothMaterial, ClothPhysics
 from sim.robot_drawing import GripperLook
+from sim.scene import PhysicsScene, check_seed
 from sim.solids import SolidMesh, box, capsule
 from sim.textures import plain_texture, poster_texture, random_plain_colour
 
@@ -692,13 +693,7 @@ def table_lift_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
     )
 
 
-def _check_seed(seed) -> int:
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise ValueError(f"ClothScene: expected a non-negative integer seed, got {seed!r}")
-    return int(seed)
-
-
-class ClothScene:
+class ClothScene(PhysicsScene):
     """A scene running in PyBullet: physics, grippers following the script, camera, noise.
 
     name : key in ``SCENES``; build : (Generator, CameraInfo) -> SceneSpec
@@ -711,9 +706,9 @@ class ClothScene:
     known_occluders : rendered frames carry ``occluder_mask``, the exact mask of the drawn
         occluders (all False where none is seen)
 
-    After construction (and ``reset``) the world is at frame 0. ``step()`` advances one
-    frame (1/30 s); ``render()`` returns the current frame as an RGBDFrame;
-    ``cloth_vertices_cam()`` is the ground truth for it.
+    A ``sim.scene.Scene``. After construction (and ``reset``) the world is at frame 0.
+    ``step()`` advances one frame (1/30 s); ``render()`` returns the current frame as an
+    RGBDFrame; ``cloth_vertices_cam()`` is the ground truth for it.
     """
 
     def __init__(self, name: str, build: Callable[[np.random.Generator, CameraInfo], SceneSpec], seed: int = 0,
@@ -728,24 +723,13 @@ class ClothScene:
         self.camera = kinect_camera(width, height)
         self.fps = FPS
         self.physics: ClothPhysics | None = None
-        self.seed = _check_seed(seed)
+        self.seed = check_seed(seed)
         self.reset()
-
-    def __enter__(self) -> ClothScene:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
-
-    def close(self) -> None:
-        if self.physics is not None:
-            self.physics.close()
-            self.physics = None
 
     def reset(self, seed: int | None = None) -> None:
         """Rebuild the world from ``seed`` (default: the last seed) and settle it to frame 0."""
         if seed is not None:
-            self.seed = _check_seed(seed)
+            self.seed = check_seed(seed)
         scene_seq, noise_seq = np.random.SeedSequence(self.seed).spawn(2)
         self.spec = self._build(np.random.default_rng(scene_seq), self.camera)
         self._noise_rng = np.random.default_rng(noise_seq)
@@ -775,11 +759,6 @@ class ClothScene:
         self._last_render = None
 
     @property
-    def time_s(self) -> float:
-        """Time of the current frame, seconds after frame 0."""
-        return self.frame_index / self.fps
-
-    @property
     def n_frames(self) -> int:
         """Frames the scene's script is written for (60 for the paper's scenes)."""
         return self.spec.n_frames
@@ -788,16 +767,6 @@ class ClothScene:
     def has_occluders(self) -> bool:
         """Whether the script has occluders (drawn or, in a twin, left out)."""
         return self.spec.occluders is not None
-
-    @property
-    def faces(self) -> np.ndarray:
-        """(F, 3) int64 cloth faces, counter-clockwise seen from the cloth's front."""
-        return self.spec.cloth.faces
-
-    @property
-    def uv_m(self) -> np.ndarray:
-        """(V, 2) float64 material coordinates of the cloth vertices, metres (``ClothMesh.uv_m``)."""
-        return self.spec.cloth.uv_m
 
     def step(self) -> None:
         """Advance one frame period, grippers moving to the script's poses for the next frame;
@@ -811,14 +780,6 @@ class ClothScene:
             if round(event.time_s * self.fps) == self.frame_index:
                 at = self.physics.cloth_vertices()[event.vertex]
                 self.physics.grippers[event.gripper].close_on(self.physics.nodes_near(at, GRASP_RADIUS_M))
-
-    def cloth_vertices_world(self) -> np.ndarray:
-        """(V, 3) float64 cloth vertices now, metres, world frame."""
-        return self.physics.cloth_vertices()
-
-    def cloth_vertices_cam(self) -> np.ndarray:
-        """(V, 3) float64 cloth vertices now, metres, camera optical frame (the ground truth)."""
-        return self.virtual_camera.world_to_camera(self.physics.cloth_vertices())
 
     def occluder_mesh_world(self) -> SolidMesh | None:
         """The occluders the script places now (world frame), drawn or not; None when there are none."""
@@ -846,10 +807,7 @@ class ClothScene:
         solids = self.occluder_mesh_world() if self.draw_occluders else None
         image = self.virtual_camera.render(self.physics, self.spec.texture_rgb, solids=solids)
         self._last_render = image
-        rgb, depth = image.rgb, image.depth_m
-        if self.noise:
-            depth = add_depth_noise(depth, self.camera.K, self.noise_model, self._noise_rng)
-            rgb = add_colour_noise(rgb, self.noise_model.colour_sigma, self._noise_rng)
+        rgb, depth = self._sensed(image.rgb, image.depth_m)
         occluder_mask = self.occluder_mask() if self.known_occluders else None
         return RGBDFrame(rgb=rgb, depth_m=depth, camera=self.camera, timestamp_s=self.time_s, seq=self.frame_index,
                          occluder_mask=occluder_mask)

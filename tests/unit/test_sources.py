@@ -22,7 +22,6 @@ from perception.sources import (
     Pacing,
     RealSenseSource,
     SequenceSource,
-    SimSource,
     SourceError,
     publish_frames,
 )
@@ -166,17 +165,21 @@ def test_sequence_source_replays_the_folder_with_its_depth_scale(tmp_path):
 
 
 @pytest.mark.slow
-def test_sim_source_renders_frames_at_30_hz_and_replays_a_pass():
+def test_scene_source_renders_frames_at_30_hz_and_replays_a_pass():
     pytest.importorskip("pybullet")
-    with SimSource("poster_bend", seed=2, width=64, height=48, n_frames=2) as src:
+    from sim.frame_source import SceneSource
+    from sim.scenes import make_scene
+
+    with SceneSource(make_scene("poster_bend", seed=2, width=64, height=48), n_frames=2) as src:
+        assert src.name == "sim:poster_bend"
         first = list(src.frames())
         assert [f.seq for f in first] == [0, 1]
         assert [f.timestamp_s for f in first] == pytest.approx([0.0, 1 / 30])
         assert first[0].rgb.shape == (48, 64, 3) and src.depth_scale is None
         again = list(src.frames())
         assert again[1].rgb.tobytes() == first[1].rgb.tobytes()
-    with pytest.raises(ValueError, match="n_frames"):
-        SimSource("poster_bend", n_frames=0)
+        with pytest.raises(ValueError, match="n_frames"):
+            SceneSource(src.scene, n_frames=0)
 
 
 @pytest.mark.slow
@@ -186,7 +189,7 @@ def test_sim_source_sends_the_known_occluder_mask_when_asked():
 
     common = ["sim", "--scene", "gripper_corner_move", "--seed", "2", "--width", "64", "--height", "48"]
     with open_source(build_parser().parse_args([*common, "--known-occluders"])) as src:
-        assert src.n_frames == src.script_frames >= 60
+        assert src.n_frames == src.scene.n_frames >= 60
         frame = next(src.frames())
         assert frame.occluder_mask.shape == (48, 64) and frame.occluder_mask.any()
     with open_source(build_parser().parse_args([*common, "--known-occluders", "--no-occluders"])) as twin:
