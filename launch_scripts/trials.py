@@ -41,7 +41,6 @@ from pathlib import Path
 from tqdm import tqdm
 
 from launch_scripts.cli import OneLineParser, positive_int
-from launch_scripts.trial_runner.judge import MODES
 from launch_scripts.trial_runner.report import markdown, report, write_json
 from launch_scripts.trial_runner.trial import (
     TrialConfig,
@@ -49,7 +48,7 @@ from launch_scripts.trial_runner.trial import (
     scene_record,
     trial_config_dict,
 )
-from sim.laundry import CLOTH_KINDS, INITIAL_STATES
+from sim.laundry import CLOTH_KINDS, INITIAL_STATES, MODES
 
 log = logging.getLogger("launch_scripts.trials")
 

@@ -1,6 +1,6 @@
 """The results of many trials: REPORT.json and a markdown summary.
 
-REPORT.json (DESIGN.md, "Trial runner"): ``success_rate`` and ``trials`` (one record
+REPORT.json: ``success_rate`` and ``trials`` (one record
 of ``trial.run_trial`` each, with at least ``seed`` and ``success``), plus the command,
 the settings, a Wilson 95 % interval and breakdowns by initial state and cloth.
 """
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import re
 from collections import Counter
@@ -16,9 +17,25 @@ from pathlib import Path
 
 import numpy as np
 
-from launch_scripts.trial_runner.judge import TOLERANCE_M, wilson_interval
+from sim.laundry.judge import TOLERANCE_M
 
 log = logging.getLogger(__name__)
+
+
+def wilson_interval(successes: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (95 % for the default z).
+
+    successes, n : ints, 0 <= successes <= n; returns (low, high) in [0, 1]; (0, 1) for n = 0
+    """
+    if n < 0 or not 0 <= successes <= max(n, 0):
+        raise ValueError(f"Expected 0 <= successes <= n, got successes={successes}, n={n}")
+    if n == 0:
+        return 0.0, 1.0
+    p = successes / n
+    denominator = 1.0 + z * z / n
+    centre = (p + z * z / (2 * n)) / denominator
+    half = z * math.sqrt(p * (1.0 - p) / n + z * z / (4 * n * n)) / denominator
+    return max(0.0, centre - half), min(1.0, centre + half)
 
 
 def _rate(records: list[dict], key: str = "success") -> dict:

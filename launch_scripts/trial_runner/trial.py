@@ -10,14 +10,16 @@ the tests. This process owns the simulation and plays the robot's controller::
 
 Steps: build the scene from the seed (``sim.laundry``); start both services on free
 loopback ports; find the cloth against a picture of the empty table
-(``segment.mask_from_reference``: depth cannot see a cloth lying on a table) and ask
-the perception service to initialise on it; publish ``observe_frames`` frames one at a
-time, each after the estimate of the previous one arrived (republished with back-off
-until it does, so a slow joiner or a loaded machine only delays the trial); request a
-plan of the configured mode; execute the plan the controller chooses (the planner's
-best; when the robot holds the cloth up, the lowest point of the cloth it sees through a full turn,
-``lowest_point_when_held``) with ``sim.grasp_execution``; judge it (``judge.judge``).
-Children are stopped on every exit path and every wait is bounded.
+(``sim.laundry.mask_from_reference``: depth cannot see a cloth lying on a table) and ask
+the perception service to initialise on it; publish ``observe_frames`` frames of the
+scene as a frame source (``sim.frame_source.SceneSource``) one at a time, each after the
+estimate of the previous one arrived (republished with back-off until it does, so a slow
+joiner or a loaded machine only delays the trial); request a plan of the configured
+mode; execute the plan the controller chooses (``sim.laundry.controller``: the planner's
+best; when the robot holds the cloth up, the lowest point of the cloth it sees through a
+full turn) with ``sim.grasp_execution``; judge it (``sim.laundry.judge``). This module
+only orchestrates: the task's logic is ``sim.laundry``'s. Children are stopped on every
+exit path and every wait is bounded.
 
 The record (a JSON-ready dict) holds at least ``seed`` and ``success``; see ``run_trial``.
 """
@@ -36,7 +38,6 @@ from pathlib import Path
 
 import numpy as np
 
-from grasping import lowest_point_grasp
 from ipc.messages import (
     GraspPlan,
     GraspPlanReply,
@@ -45,19 +46,13 @@ from ipc.messages import (
     MeshEstimate,
     StatusReply,
 )
-from launch_scripts.trial_runner.judge import MODES, judge
-from launch_scripts.trial_runner.pictures import (
-    caption,
-    draw_plan,
-    draw_point,
-    save_png,
-    strip,
-)
 from launch_scripts.trial_runner.processes import ChildError, Children
-from launch_scripts.trial_runner.segment import cloth_points, mask_from_reference
-from perception.geometry import invert_transform, transform_points
 from sim.grasp_execution import ExecutionConfig, execute_grasp
 from sim.ground_truth import error_summary, vertex_errors
+from sim.laundry.controller import View, default_controller
+from sim.laundry.judge import MODES, judge
+from sim.laundry.pictures import caption, draw_plan, draw_point, save_png, strip
+from sim.laundry.segment import mask_from_reference
 
 log = logging.getLogger(__name__)
 
@@ -121,70 +116,6 @@ class TrialConfig:
             raise ValueError(f"Expected observe_frames >= 1, got {self.observe_frames}")
         if not 1 <= int(self.max_candidates) <= GraspRequest.MAX_CANDIDATES:
             raise ValueError(f"Expected max_candidates in [1, {GraspRequest.MAX_CANDIDATES}], got {self.max_candidates}")
-
-
-#: Turns of a held cloth, after the first look, before its lowest point is chosen: every
-#: 30 degrees of a full turn. Measured on 32 held scenes (even seeds 0-62, state forced,
-#: integrated at 1/240 s; the cloth vertex nearest the chosen point against the true
-#: corners, material distance): 4 looks left it 4-9 cm from every corner in 5 scenes and
-#: on a corner's vertex in 13; 8 looks at most 3.1 cm, on a corner's vertex in 18; 12
-#: looks at most 3.1 cm, on a corner's vertex in 25; 16 looks no better.
-TURNS_RAD = tuple(np.radians(np.arange(30.0, 360.0, 30.0)))
-
-
-@dataclass(frozen=True)
-class View:
-    """What the controller sees when it chooses a plan.
-
-    frame : RGBDFrame, the last frame shown to the perception service (the plan's)
-    reference : RGBDFrame, the robot's picture of its empty workspace (same camera)
-    cloth_mask : (H, W) bool, the cloth in ``frame``, found against ``reference``
-    """
-
-    frame: object
-    reference: object
-    cloth_mask: np.ndarray
-
-
-def best_candidate(reply: GraspPlanReply, scene, view: View) -> GraspPlan | None:
-    """The planner's best candidate (None when it has none)."""
-    return reply.candidates[0] if reply.candidates else None
-
-
-def lowest_point_when_held(reply: GraspPlanReply, scene, view: View) -> GraspPlan | None:
-    """The controller's choice (default): the planner's best, but the lowest point of the
-    cloth when the robot holds it up (``grasping.lowest_point_grasp``).
-
-    A cloth hanging from one point has a corner at its lowest point (the opposite corner
-    of a towel; a hem corner or sleeve end of a shirt); a robot that holds the cloth knows
-    it does. The lowest point is taken from the cloth's measured points, not from the
-    mesh: the mesh, laid over the first frame, covers a hanging cloth unevenly and often
-    stops short of its tip. From one view the tip is often hidden, behind a nearer layer
-    or seen edge-on where the sensor loses depth, so the robot turns the held cloth a
-    twelfth of a turn at a time and looks again (``TURNS_RAD``, ``scene.render_turned``),
-    pooling the points of the last frame and of the turned views in the world frame
-    (``scene.T_world_cam``, z up).
-    """
-    if getattr(scene, "holder", None) is None:
-        return best_candidate(reply, scene, view)
-    world = [scene.to_world(cloth_points(view.frame, view.cloth_mask, view.reference))]
-    for angle in TURNS_RAD:
-        frame, reference, T_world_turned = scene.render_turned(angle)
-        points = cloth_points(frame, mask_from_reference(frame, reference), reference)
-        world.append(transform_points(T_world_turned, points))
-    # back to the camera the plan is given in
-    points_cam = transform_points(invert_transform(scene.T_world_cam), np.concatenate(world))
-    if len(points_cam) < 3:
-        return best_candidate(reply, scene, view)
-    return lowest_point_grasp(points_cam, scene.T_world_cam, frame_id=view.frame.camera.frame_id,
-                              timestamp_s=view.frame.timestamp_s)
-
-
-def default_controller(mode: str) -> Callable[[GraspPlanReply, object, View], GraspPlan | None]:
-    """The controller's choice for a grasp mode: ``lowest_point_when_held`` for corner and
-    boundary grasps, ``best_candidate`` for the highest-point baseline, which takes the
-    planner's highest point whatever the cloth's state."""
-    return best_candidate if mode == "highest" else lowest_point_when_held
 
 
 def _workspace_args(scene) -> list[str]:
@@ -337,25 +268,39 @@ def run_trial(seed: int, config: TrialConfig | None = None,
     return record
 
 
+def _observe(scene, link: _Link, config: TrialConfig, reference) -> tuple[dict, dict, dict]:
+    """Show the perception service the scene's first ``config.observe_frames`` frames, as a
+    frame source, one at a time: the first after asking the service to initialise on the
+    cloth found in it against the empty table, each after the estimate of the one before
+    arrived. Returns (frames, true cloth vertices in the camera frame, estimates), each
+    by frame seq. The scene is left at the last frame shown."""
+    from perception.sources import Pacing, publish_frames
+    from sim.frame_source import SceneSource
+
+    frames, truth, estimates = {}, {}, {}
+
+    def show(frame) -> None:
+        if not frames:
+            mask = mask_from_reference(frame, reference)
+            if not mask.any():
+                raise RuntimeError("no cloth found against the empty table")
+            status = link.control.request(InitialiseRequest(request_id=1, mask=mask))
+            if not isinstance(status, StatusReply) or status.state != "initialising":
+                raise RuntimeError(f"perception service did not accept the initialisation ({status})")
+        frames[frame.seq] = frame
+        truth[frame.seq] = scene.cloth_vertices_cam()
+        estimates[frame.seq] = link.estimate_of(frame)
+
+    # the source is not closed here: the scene it wraps goes on to the grasp
+    publish_frames(SceneSource(scene), show, pacing=Pacing("fast"), max_frames=config.observe_frames)
+    return frames, truth, estimates
+
+
 def _observe_plan_execute(scene, link: _Link, config: TrialConfig, choose_plan, record: dict) -> None:
     """The body of a trial once the services run; fills ``record``."""
     reference = scene.render_empty()
-    frame = scene.render()
-    mask = mask_from_reference(frame, reference)
-    if not mask.any():
-        raise RuntimeError("no cloth found against the empty table")
-    status = link.control.request(InitialiseRequest(request_id=1, mask=mask))
-    if not isinstance(status, StatusReply) or status.state != "initialising":
-        raise RuntimeError(f"perception service did not accept the initialisation ({status})")
-    estimates, truth, frames = {}, {}, {}
-    for k in range(config.observe_frames):
-        if k:
-            scene.step()
-            frame = scene.render()
-        truth[frame.seq] = scene.cloth_vertices_cam()
-        frames[frame.seq] = frame
-        estimates[frame.seq] = link.estimate_of(frame)
-    last = frame.seq
+    frames, truth, estimates = _observe(scene, link, config, reference)
+    last = max(frames)
 
     def show_last_frame_again() -> None:
         link.frames_pub.publish(frames[last])

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from launch_scripts.trial_runner import TOLERANCE_M, TrialConfig, run_trial
-from sim.laundry import laundry_spec
+from launch_scripts.trial_runner import TrialConfig, run_trial
+from sim.laundry import TOLERANCE_M, laundry_spec
 
 pytest.importorskip("pybullet")
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(400)]

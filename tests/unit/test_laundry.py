@@ -202,8 +202,7 @@ def test_a_held_cloth_is_at_rest_when_the_frames_begin_with_a_corner_lowest(clot
 
 @pytest.mark.slow
 def test_a_turned_view_of_a_held_cloth_sees_it_where_it_hangs():
-    from launch_scripts.trial_runner.segment import cloth_points, mask_from_reference
-    from sim.laundry import CLOTH_SPACING_M, LaundryScene
+    from sim.laundry import CLOTH_SPACING_M, LaundryScene, cloth_points, mask_from_reference
 
     pytest.importorskip("pybullet")
     with LaundryScene(laundry_spec(6, state="held"), noise=False) as scene:

@@ -6,10 +6,8 @@ import numpy as np
 import pytest
 
 from ipc.messages import CameraInfo, RGBDFrame
-from launch_scripts.trial_runner.judge import TOLERANCE_M, judge, wilson_interval
-from launch_scripts.trial_runner.report import failure_kind, markdown, report, summarise
-from launch_scripts.trial_runner.segment import mask_from_reference
-from sim.laundry import rectangle_corners_uv
+from launch_scripts.trial_runner.report import failure_kind, markdown, report, summarise, wilson_interval
+from sim.laundry import TOLERANCE_M, judge, mask_from_reference, rectangle_corners_uv
 
 # A 0.5 x 0.4 m towel: corners at (0, 0), (0.5, 0), (0.5, 0.4), (0, 0.4); outline = its sides.
 CORNERS, _ = rectangle_corners_uv(0.5, 0.4)
@@ -234,7 +232,7 @@ def test_a_trial_process_that_dies_is_a_failed_record_and_the_others_run(tmp_pat
 
 
 def test_a_caption_is_one_label_its_outline_does_not_drift_from_its_text():
-    from launch_scripts.trial_runner.pictures import caption
+    from sim.laundry.pictures import caption
 
     img = caption(np.full((60, 700, 3), 128, np.uint8), "corner plan (red), other candidates (orange), true corners (green)")
     grey = img[..., 0].astype(int)
@@ -245,7 +243,7 @@ def test_a_caption_is_one_label_its_outline_does_not_drift_from_its_text():
 
 
 def test_the_baseline_executes_the_planners_highest_point_even_for_a_held_cloth():
-    from launch_scripts.trial_runner.trial import best_candidate, default_controller, lowest_point_when_held
+    from sim.laundry import best_candidate, default_controller, lowest_point_when_held
 
     assert default_controller("highest") is best_candidate
     assert default_controller("corner") is lowest_point_when_held

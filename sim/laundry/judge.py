@@ -1,4 +1,4 @@
-"""Judging a grasp by ground truth, and summarising many trials (pure NumPy and math).
+"""Judging a trial's grasp by ground truth (pure NumPy).
 
 Material coordinates throughout: ``uv`` points are metres on the flat cloth (u right,
 v down from the top-left of its bounding box, ``sim.cloth_mesh``), so a distance is
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim.laundry import distance_to_segments, nearest_corner
+from sim.laundry.truth import distance_to_segments, nearest_corner
 
 log = logging.getLogger(__name__)
 
@@ -77,19 +77,3 @@ def judge(mode: str, grasped_uv, lifted_clear: bool, corners_uv: np.ndarray, out
         reasons.append("not lifted clear")
     return Judgement(success=not reasons, corner_success=corner_success, corner_error_m=corner_error,
                      nearest_corner=k, boundary_error_m=boundary_error, reason="; ".join(reasons))
-
-
-def wilson_interval(successes: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
-    """Wilson score interval of a binomial proportion (95 % for the default z).
-
-    successes, n : ints, 0 <= successes <= n; returns (low, high) in [0, 1]; (0, 1) for n = 0
-    """
-    if n < 0 or not 0 <= successes <= max(n, 0):
-        raise ValueError(f"Expected 0 <= successes <= n, got successes={successes}, n={n}")
-    if n == 0:
-        return 0.0, 1.0
-    p = successes / n
-    denominator = 1.0 + z * z / n
-    centre = (p + z * z / (2 * n)) / denominator
-    half = z * math.sqrt(p * (1.0 - p) / n + z * z / (4 * n * n)) / denominator
-    return max(0.0, centre - half), min(1.0, centre + half)

@@ -1,0 +1,172 @@
+"""A laundry scene running in PyBullet: the settled cloth on its table, a noisy RGB-D camera, ground truth."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from ipc.messages import RGBDFrame
+from perception.geometry import boundary_vertices, rotation_about_axis, transform_points
+from sim.camera import VirtualCamera
+from sim.laundry.spec import HOLDER_HALF_EXTENTS_M, HOLDER_RADIUS_M, TABLE_HALF_XY_M, LaundrySpec, laundry_spec
+from sim.noise import DepthNoiseModel
+from sim.physics import ClothPhysics, Gripper
+from sim.scene import PhysicsScene
+
+log = logging.getLogger(__name__)
+
+
+class LaundryScene(PhysicsScene):
+    """A laundry scene running in PyBullet: settled cloth, table, camera with noise.
+
+    spec : LaundrySpec (``laundry_spec(seed)``)
+    noise : add sensor noise to rendered frames (its random stream comes from the seed)
+    noise_model : DepthNoiseModel, Kinect-like by default
+
+    A ``sim.scene.Scene``. After construction (and ``reset``) the cloth has settled for
+    ``spec.settle_s`` (and been brought to rest for ``spec.rest_s``): frame 0. ``step()``
+    advances one frame, ``render()`` returns what the sensor sees now, ``render_empty()``
+    the same view without the cloth (a reference picture of the empty table), and the
+    accessors below give the ground truth. Use as a context manager or call ``close()``.
+    """
+
+    def __init__(self, spec: LaundrySpec, noise: bool = True, noise_model: DepthNoiseModel | None = None):
+        self.spec = spec
+        self.name = f"laundry:{spec.seed}"
+        self.noise = bool(noise)
+        self.noise_model = noise_model or DepthNoiseModel()
+        self.camera = spec.camera
+        self.T_world_cam = np.asarray(spec.T_world_cam, dtype=np.float64)
+        if isinstance(spec.substeps, bool) or int(spec.substeps) != spec.substeps or spec.substeps < 1:
+            raise ValueError(f"LaundryScene: expected spec.substeps a positive integer, got {spec.substeps!r}")
+        self.physics: ClothPhysics | None = None
+        self.reset()
+        log.info("laundry scene %s", spec.describe())
+
+    def reset(self) -> None:
+        """Build the world from the spec again and let the cloth settle: frame 0, and the same
+        frames (noise included) after it as the first time."""
+        self.close()
+        spec = self.spec
+        _, noise_seq = np.random.SeedSequence(spec.seed).spawn(2)
+        self._noise_rng = np.random.default_rng(noise_seq)
+        self.physics = ClothPhysics(timestep_s=spec.timestep_s)
+        try:
+            for box in spec.boxes:
+                self.physics.add_box(box.half_extents_m, box.position, box.quat_xyzw, box.rgba)
+            self.cloth_id = self.physics.add_cloth(spec.cloth, spec.cloth_vertices_world, spec.material)
+            self.physics.set_timestep(spec.timestep_s / spec.substeps)
+            self.holder: Gripper | None = None
+            if spec.holder_vertex is not None:
+                # Visible, so that it hides the corner it holds as a hand or gripper would.
+                self.holder = self.physics.add_gripper(spec.holder_position, visual_half_extents_m=HOLDER_HALF_EXTENTS_M,
+                                                       rgba=(0.25, 0.25, 0.28, 1.0))
+                self.holder.close_on(self.physics.nodes_near(spec.holder_position, HOLDER_RADIUS_M))
+            self.virtual_camera = VirtualCamera(self.camera, self.T_world_cam, lighting=spec.lighting)
+            self.physics.advance(spec.settle_s)
+            if spec.rest_s > 0:
+                self.physics.settle_to_rest(spec.rest_s)
+        except Exception:
+            self.close()
+            raise
+        self.frame_index = 0
+        self._last_mask: np.ndarray | None = None
+
+    @classmethod
+    def from_seed(cls, seed: int, noise: bool = True, **spec_options) -> LaundryScene:
+        """``LaundryScene(laundry_spec(seed, **spec_options), noise)``."""
+        return cls(laundry_spec(seed, **spec_options), noise=noise)
+
+    # -- time ---------------------------------------------------------------------------------
+
+    def step(self) -> None:
+        """Advance one frame period (1/30 s)."""
+        self.physics.advance(1.0 / self.fps)
+        self.frame_index += 1
+
+    def release_holder(self) -> None:
+        """The holder of a ``held`` cloth lets go (nothing happens for other states)."""
+        if self.holder is not None:
+            self.holder.open()
+
+    # -- sensor -------------------------------------------------------------------------------
+
+    def _frame(self, rgb: np.ndarray, depth: np.ndarray) -> RGBDFrame:
+        rgb, depth = self._sensed(rgb, depth)
+        return RGBDFrame(rgb=rgb, depth_m=depth, camera=self.camera, timestamp_s=self.time_s, seq=self.frame_index)
+
+    def render(self) -> RGBDFrame:
+        """The current frame as the sensor sees it (with noise if the scene has it)."""
+        image = self.virtual_camera.render(self.physics, self.spec.texture_rgb)
+        self._last_mask = image.body_ids == self.cloth_id
+        return self._frame(image.rgb, image.depth_m)
+
+    def render_empty(self) -> RGBDFrame:
+        """The same view without the cloth: what the sensor saw of the empty table."""
+        image = self.virtual_camera.render_rigid(self.physics)
+        return self._frame(image.rgb, image.depth_m)
+
+    def render_turned(self, angle_rad: float) -> tuple[RGBDFrame, RGBDFrame, np.ndarray]:
+        """What the sensor sees once the holder has turned a held cloth by ``angle_rad``
+        about the vertical through the holder: (frame, the same view without the cloth,
+        T_world_cam of that view).
+
+        A cloth at rest that hangs from one point keeps its shape when the point turns it
+        about the vertical, so turning the cloth is rendered as turning the camera the
+        other way about that axis; the cloth's points seen in the frame are then where the
+        cloth hangs now, through the returned T_world_cam. Noise as in ``render``.
+        Raises ValueError for a scene whose cloth is not held.
+        """
+        if self.holder is None:
+            raise ValueError("render_turned: the cloth is not held (state 'held' only)")
+        turn = np.eye(4)
+        turn[:3, :3] = rotation_about_axis(np.array([0.0, 0.0, 1.0]), -float(angle_rad))
+        axis = np.array([*self.spec.holder_position[:2], 0.0])
+        turn[:3, 3] = axis - turn[:3, :3] @ axis
+        T_world_cam = turn @ self.T_world_cam
+        camera = VirtualCamera(self.camera, T_world_cam, lighting=self.spec.lighting)
+        seen, empty = camera.render(self.physics, self.spec.texture_rgb), camera.render_rigid(self.physics)
+        frame, reference = self._frame(seen.rgb, seen.depth_m), self._frame(empty.rgb, empty.depth_m)
+        return frame, reference, T_world_cam
+
+    def cloth_mask(self) -> np.ndarray:
+        """(H, W) bool, where the last ``render()`` saw the cloth (exact, before noise)."""
+        if self._last_mask is None:
+            raise ValueError("cloth_mask: nothing rendered yet (call render first)")
+        return self._last_mask
+
+    # -- ground truth -------------------------------------------------------------------------
+
+    def corner_vertices(self) -> np.ndarray:
+        """(C,) int64 cloth vertex at each true corner (the corners are mesh vertices)."""
+        uv = self.uv_m
+        ids = np.array([np.argmin(np.linalg.norm(uv - c, axis=1)) for c in self.spec.corners_uv], dtype=np.int64)
+        return ids
+
+    def corners_world(self) -> np.ndarray:
+        """(C, 3) float64 metres, world frame: where the true corners are now."""
+        return self.cloth_vertices_world()[self.corner_vertices()]
+
+    def support_height(self, xy_world: np.ndarray) -> np.ndarray:
+        """Height of the surface under world points: the table top over the table, else the floor.
+
+        xy_world : (N, 2) float metres; returns (N,) float64 metres
+        """
+        xy = np.asarray(xy_world, dtype=np.float64).reshape(-1, 2)
+        hx, hy = TABLE_HALF_XY_M
+        over = (np.abs(xy[:, 0]) <= hx) & (np.abs(xy[:, 1]) <= hy)
+        return np.where(over, self.spec.table_top_z, 0.0)
+
+    def clearance_above_support(self) -> np.ndarray:
+        """(V,) float64 metres: height of each cloth node above the surface under it."""
+        v = self.cloth_vertices_world()
+        return v[:, 2] - self.support_height(v[:, :2])
+
+    def boundary_vertices(self) -> np.ndarray:
+        """(B,) int64 sorted ids of the cloth's boundary vertices."""
+        return boundary_vertices(self.faces)
+
+    def to_world(self, points_cam: np.ndarray) -> np.ndarray:
+        """(N, 3) camera-frame points, metres, to (N, 3) world points."""
+        return transform_points(self.T_world_cam, points_cam)
