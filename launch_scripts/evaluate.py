@@ -28,7 +28,7 @@ import numpy as np
 
 from perception.tracker import TrackerConfig
 from sim.evaluation import ABLATIONS, cpd_recording, record_scene, track_recording
-from sim.figures import cloud_of, error_over_time, overlay_strip, views
+from sim.evaluation.figures import cloud_of, error_over_time, overlay_strip, views
 
 log = logging.getLogger("launch_scripts.evaluate")
 

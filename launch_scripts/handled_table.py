@@ -12,7 +12,7 @@ the last two once without and once with the occluder's exact mask in the frames
 (``RGBDFrame.occluder_mask``, "known masks"). Every run starts from the true mask of the
 cloth as seen in its first frame (without what the occluder hides), so the table measures
 tracking, not the first frame's segmentation.
-Scores (``sim.handled_evaluation``) are pooled over the seeds in the table; the JSON keeps
+Scores (``sim.evaluation.handled``) are pooled over the seeds in the table; the JSON keeps
 every seed's scores and per-frame series.
 """
 
@@ -29,8 +29,8 @@ from tqdm import tqdm
 from launch_scripts.evaluate import write_section
 from perception.tracker import TrackerConfig
 from sim.evaluation import SceneRecording, record_scene
-from sim.figures import error_with_occlusion, overlay_strip
-from sim.handled_evaluation import (
+from sim.evaluation.figures import error_with_occlusion, overlay_strip
+from sim.evaluation.handled import (
     CONFIDENT,
     WORST_AREA_MIN,
     WRONG_MM,

@@ -21,7 +21,7 @@ import numpy as np
 
 from perception import track
 from sim import record
-from sim.figures import error_over_time
+from sim.evaluation.figures import error_over_time
 from sim.ground_truth import error_summary, vertex_errors
 
 

@@ -8,7 +8,9 @@
   and for moving rigid bodies, ``sim.solids``: boxes, cylinders, spheres).
 - ``sim.robot_drawing``: ``GripperLook``, a parallel gripper with its wrist and arm to draw.
 - ``sim.noise``: depth/colour sensor noise; ``sim.ground_truth``: the accuracy metric, and
-  what an occluder hides; ``sim.handled_evaluation``: scores of tracking while handled.
+  what an occluder hides.
+- ``sim.evaluation``: tracker runs on recorded scenes, their scores (also while handled),
+  the CPD peer and figures.
 - ``sim.cloth_mesh``, ``sim.textures``: cloth meshes and textures generated in code.
 - ``python -m sim.record``: write a scene as a sequence folder (``perception.sequence``).
 

@@ -1,4 +1,4 @@
-"""Scoring runs on handled scenes (sim.handled_evaluation), on constructed recordings with known answers."""
+"""Scoring runs on handled scenes (sim.evaluation.handled), on constructed recordings with known answers."""
 
 import numpy as np
 import pytest
@@ -6,8 +6,8 @@ import pytest
 from ipc.messages import CameraInfo, MeshEstimate, RGBDFrame
 from sim.cloth_mesh import rectangle_cloth
 from sim.evaluation import SceneRecording
+from sim.evaluation.handled import CONFIDENT, WRONG_MM, cloth_hidden_fraction, score_run
 from sim.ground_truth import hidden_behind_occluder
-from sim.handled_evaluation import CONFIDENT, WRONG_MM, cloth_hidden_fraction, score_run
 
 W, H = 100, 80
 CAMERA = CameraInfo(width=W, height=H, K=np.array([[100.0, 0.0, 49.5], [0.0, 100.0, 39.5], [0.0, 0.0, 1.0]]))

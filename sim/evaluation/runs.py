@@ -2,7 +2,7 @@
 
 A ``SceneRecording`` is a scene's frames with the true cloth vertices per frame, made once
 and then tracked by any number of tracker variants, so an ablation compares them on
-identical input. Scores follow DESIGN.md ("Measuring"): each estimated vertex is bound at
+identical input. Scores follow ``sim.ground_truth``: each estimated vertex is bound at
 frame 0 to the closest point of the true cloth surface and followed as a material point.
 """
 
@@ -17,8 +17,8 @@ import numpy as np
 from tqdm import tqdm
 
 from ipc.messages import RGBDFrame
-from perception.cpd_baseline import CPDTracker
 from perception.tracker import MeshTracker, TrackerConfig
+from sim.evaluation.cpd_peer import CPDTracker
 from sim.ground_truth import bind_to_surface, error_summary, surface_points, vertex_errors
 
 log = logging.getLogger(__name__)

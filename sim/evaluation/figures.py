@@ -1,22 +1,21 @@
 """Figures of tracking runs: error over time, and 3D views of estimates beside the input cloud.
 
-Each function draws into a new matplotlib figure and saves it as a PNG at ``path``.
+Each function draws into a new matplotlib figure and saves it as a PNG at ``path``. The
+figures are drawn without pyplot, so importing this module selects no backend and
+opens no window.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import cv2
+import numpy as np
+from matplotlib.figure import Figure
+from mpl_toolkits.mplot3d.art3d import Line3DCollection
 
-matplotlib.use("Agg")  # files only; never open a window
-import cv2  # noqa: E402
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from mpl_toolkits.mplot3d.art3d import Line3DCollection  # noqa: E402
-
-from perception.geometry import crop_intrinsics, rays, unique_edges  # noqa: E402
-from perception.overlay import draw_mesh  # noqa: E402
+from perception.geometry import crop_intrinsics, rays, unique_edges
+from perception.overlay import draw_mesh
 
 # (elevation, azimuth) of matplotlib's 3D camera for the paper's Fig. 5 views, with the
 # optical frame re-labelled so that "up" is -y and the viewer looks along +z.
@@ -30,7 +29,8 @@ def _to_plot(points_cam: np.ndarray) -> np.ndarray:
 
 def error_over_time(path: Path, title: str, series: dict[str, np.ndarray], fps: float = 30.0) -> None:
     """series : label -> (T, N) metres; plots each label's mean (solid) and 95th percentile (dotted)."""
-    fig, ax = plt.subplots(figsize=(7, 3.6))
+    fig = Figure(figsize=(7, 3.6))
+    ax = fig.subplots()
     for i, (label, err) in enumerate(series.items()):
         t = np.arange(err.shape[0]) / fps
         colour = f"C{i}"
@@ -43,7 +43,6 @@ def error_over_time(path: Path, title: str, series: dict[str, np.ndarray], fps: 
     ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def error_with_occlusion(path: Path, title: str, runs: dict[str, dict], hidden_s: np.ndarray,
@@ -55,7 +54,8 @@ def error_with_occlusion(path: Path, title: str, runs: dict[str, dict], hidden_s
         occluder then, drawn as a grey band on both panels (darker = more hidden)
     wrong_mm, confident : the thresholds of a wrong and of a confident estimate, as dashed lines
     """
-    fig, (ax_err, ax_conf) = plt.subplots(2, 1, figsize=(7.5, 5.2), sharex=True, height_ratios=(3, 2))
+    fig = Figure(figsize=(7.5, 5.2))
+    ax_err, ax_conf = fig.subplots(2, 1, sharex=True, height_ratios=(3, 2))
     peak = max(float(np.max(hidden_fraction)), 1e-9) if len(hidden_fraction) else 1.0
     step = float(np.median(np.diff(hidden_s))) if len(hidden_s) > 1 else 1.0 / 30.0
     for ax in (ax_err, ax_conf):
@@ -83,7 +83,6 @@ def error_with_occlusion(path: Path, title: str, runs: dict[str, dict], hidden_s
     ax_err.legend(fontsize=7, ncol=2)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 def cloud_of(frame, mask: np.ndarray, max_points: int = 4000, rng=None) -> tuple[np.ndarray, np.ndarray]:
@@ -101,7 +100,7 @@ def cloud_of(frame, mask: np.ndarray, max_points: int = 4000, rng=None) -> tuple
 def views(path: Path, title: str, cloud: tuple[np.ndarray, np.ndarray], meshes: dict[str, tuple]) -> None:
     """Rows: front, top, 45° pan; columns: the input cloud, then each mesh (vertices, faces)."""
     cols = 1 + len(meshes)
-    fig = plt.figure(figsize=(3.0 * cols, 8.4))
+    fig = Figure(figsize=(3.0 * cols, 8.4))
     pts, colours = cloud
     P = _to_plot(pts)
     lo, hi = P.min(axis=0), P.max(axis=0)
@@ -129,7 +128,6 @@ def views(path: Path, title: str, cloud: tuple[np.ndarray, np.ndarray], meshes: 
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
-    plt.close(fig)
 
 
 def overlay_strip(path: Path, frames: list, estimates: list, picks: list[int], region: np.ndarray | None = None,

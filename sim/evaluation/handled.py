@@ -30,7 +30,7 @@ from tqdm import tqdm
 
 from perception.geometry import face_areas
 from perception.tracker import MeshTracker, TrackerConfig
-from sim.evaluation import SceneRecording
+from sim.evaluation.runs import SceneRecording
 from sim.ground_truth import hidden_behind_occluder, material_point_tracks, occluded_area_ratio
 
 log = logging.getLogger(__name__)
