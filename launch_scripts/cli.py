@@ -1,10 +1,14 @@
-"""What every launch script shares: one-line usage errors, checked numbers, CURVE options, and stopping on a signal."""
+"""What every launch script shares: one-line usage errors, checked numbers, the tracker's
+options, CURVE options, and stopping on a signal."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import inspect
 import math
 import os
+import re
 import signal
 import threading
 
@@ -30,6 +34,17 @@ def positive_int(text: str) -> int:
     return value
 
 
+def non_negative_int(text: str) -> int:
+    """argparse type: an integer >= 0."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {value}")
+    return value
+
+
 def finite_float(text: str) -> float:
     """argparse type: a finite number."""
     try:
@@ -47,6 +62,84 @@ def non_negative_float(text: str) -> float:
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text}")
     return value
+
+
+def field_docs(cls) -> dict[str, str]:
+    """Field name -> description, from a dataclass's docstring, which lists its fields as
+    ``name : text`` or ``name_a, name_b : text`` lines, a description going on over the
+    more indented lines below it. Fields the docstring does not describe are left out."""
+    docs, names = {}, []
+    for line in inspect.cleandoc(cls.__doc__ or "").splitlines():
+        entry = re.match(r"^(\w+(?:, \w+)*) : (.*)$", line)
+        if entry:
+            names = entry.group(1).split(", ")
+            for name in names:
+                docs[name] = entry.group(2).strip()
+        elif names and line.startswith(" ") and line.strip():
+            for name in names:
+                docs[name] += " " + line.strip()
+        else:
+            names = []
+    return docs
+
+
+#: The tracker's presets: the paper's settings (``TrackerConfig()``) and ``TrackerConfig.realtime()``.
+TRACKER_PRESETS = ("paper", "realtime")
+
+
+def add_tracker_arguments(parser: argparse.ArgumentParser, default_preset: str = "paper") -> None:
+    """One option per field of ``perception.tracker.TrackerConfig`` (help from its docstring),
+    and ``--preset``; ``tracker_config_from_args`` reads them back.
+
+    A number or string field ``name_x`` is ``--name-x VALUE`` (a field with choices offers
+    them), a tuple of numbers ``--name-x V [V ...]``, a bool ``use_x`` is ``--x`` /
+    ``--no-x`` and any other bool ``name_x`` is ``--name-x`` / ``--no-name-x``. An option
+    not given keeps the preset's value; nested settings (``segmentation``) keep theirs.
+    """
+    from perception.tracker import TrackerConfig
+
+    g = parser.add_argument_group("tracker", "TrackerConfig's fields; an option not given keeps the preset's value")
+    g.add_argument("--preset", choices=TRACKER_PRESETS, default=default_preset,
+                   help=f"paper: SIFT/SURF features, the paper's iterations; realtime: KLT, fewer iterations "
+                        f"(default {default_preset})")
+    docs = field_docs(TrackerConfig)
+    paper, realtime = TrackerConfig(), TrackerConfig.realtime()
+
+    def shown(value) -> str:
+        if isinstance(value, bool):
+            return "on" if value else "off"
+        if isinstance(value, tuple):
+            return " ".join(shown(v) for v in value)
+        return f"{value:g}" if isinstance(value, float) else str(value)
+
+    for f in dataclasses.fields(TrackerConfig):
+        default, fast = getattr(paper, f.name), getattr(realtime, f.name)
+        values = shown(default) if default == fast else f"{shown(default)}; realtime {shown(fast)}"
+        text = f"{docs.get(f.name, '')} (default {values})".replace("%", "%%")  # argparse formats help with %
+        option = f"--{f.name.replace('_', '-')}"
+        if isinstance(default, bool):
+            flag = f.name.removeprefix("use_").replace("_", "-")
+            g.add_argument(f"--{flag}", dest=f.name, action=argparse.BooleanOptionalAction, default=None, help=text)
+        elif isinstance(default, (int, float, str)):
+            kind = {int: int, float: finite_float, str: str}[type(default)]
+            choices = f.metadata.get("choices")
+            g.add_argument(option, dest=f.name, type=kind, default=None, choices=choices,
+                           metavar=None if choices else "X", help=text)
+        elif isinstance(default, tuple) and all(isinstance(v, float) for v in default):
+            g.add_argument(option, dest=f.name, type=finite_float, nargs="+", default=None, metavar="X", help=text)
+
+
+def tracker_config_from_args(args):
+    """The ``perception.tracker.TrackerConfig`` of the options of ``add_tracker_arguments``: the
+    preset with the options given. raises ValueError (one line) for a value the tracker refuses."""
+    from perception.tracker import TrackerConfig
+
+    overrides = {}
+    for f in dataclasses.fields(TrackerConfig):
+        value = getattr(args, f.name, None)
+        if value is not None:
+            overrides[f.name] = tuple(value) if isinstance(value, list) else value
+    return TrackerConfig.realtime(**overrides) if args.preset == "realtime" else TrackerConfig(**overrides)
 
 
 def add_security_arguments(parser: argparse.ArgumentParser) -> None:

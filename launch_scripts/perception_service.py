@@ -21,10 +21,15 @@ import threading
 
 from ipc import endpoints
 from ipc.transport import STALE_AFTER_S
-from launch_scripts.cli import OneLineParser, add_security_arguments, curve_keys_from_args, stop_on_signals
-from perception.features import FEATURE_KINDS
+from launch_scripts.cli import (
+    OneLineParser,
+    add_security_arguments,
+    add_tracker_arguments,
+    curve_keys_from_args,
+    stop_on_signals,
+    tracker_config_from_args,
+)
 from perception.service import PerceptionService, ServiceConfig
-from perception.track import config_from_args
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -46,20 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--viewer", action="store_true", help="show frames and meshes live in a Rerun viewer (rerun-sdk)")
     g.add_argument("--viewer-save", metavar="FILE.rrd", help="save the Rerun recording to a file instead")
     g.add_argument("--verbose", "-v", action="count", default=0, help="-v: info, -vv: debug logging")
-    # Same names and meanings as the offline command, python -m perception.track.
-    g = p.add_argument_group("tracker")
-    g.add_argument("--preset", choices=("paper", "realtime"), default="paper",
-                   help="paper: SIFT/SURF features (default); realtime: KLT, fewer iterations")
-    g.add_argument("--features", choices=FEATURE_KINDS, help="feature detector (overrides the preset)")
-    g.add_argument("--spacing-m", type=float, help="canonical mesh edge length, metres")
-    g.add_argument("--lambda-c", type=float, help="correspondence weight (paper: 1.3)")
-    g.add_argument("--lambda-d", type=float, help="depth weight (paper: 0.6)")
-    g.add_argument("--lambda-b", type=float, help="boundary weight (paper: 0.8)")
-    g.add_argument("--alpha", type=float, help="adaptation rate of the semi-implicit solver")
-    g.add_argument("--max-iterations", type=int, help="solver iterations per frame")
-    g.add_argument("--no-correspondence", action="store_true", help="switch the correspondence term off")
-    g.add_argument("--no-depth", action="store_true", help="switch the depth term off")
-    g.add_argument("--no-boundary", action="store_true", help="switch the boundary term off")
+    add_tracker_arguments(p)  # the same options as the offline command, python -m perception.track
     add_security_arguments(p)
     return p
 
@@ -76,7 +68,7 @@ def main(argv=None) -> int:
         config = ServiceConfig(frames=args.frames, estimates=args.estimates, control=args.control,
                                auto_init=not args.no_auto_init, reinit_after_lost=args.reinit_after_lost,
                                stale_after_s=args.stale_after_s, viewer=viewer, curve=curve)
-        service = PerceptionService(config_from_args(args), config)
+        service = PerceptionService(tracker_config_from_args(args), config)
     except (ValueError, RuntimeError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

@@ -24,8 +24,7 @@ from perception.overlay import outlined_text
 from perception.raster import bounding_box
 from perception.recordings import MASKS_DIR, write_reference_masks
 from perception.reference_masks import MaskConfig, ReferenceMaskError, depth_band, follow_object
-from perception.sequence import SequenceError, open_sequence
-from perception.track import read_mask
+from perception.sequence import SequenceError, open_sequence, read_mask
 
 
 def contact_sheets(rgbs: list[np.ndarray], depths: list[np.ndarray], masks: list[np.ndarray], columns: int = 4,

@@ -3,9 +3,9 @@
     python -m launch_scripts.track_demo [--scene towel_sway] [--frames 60] [--seed 0] [--out out/track_demo]
                                         [-- extra options for perception.track, e.g. --preset realtime]
 
-The same steps a user takes with a real recording: ``python -m sim.record`` writes the
-sequence folder, ``python -m perception.track`` tracks it, and the result is compared
-with the simulation's ``groundtruth_mesh.npz`` (DESIGN.md metric). Outputs: the sequence,
+The same steps a user takes with a real recording: ``python -m launch_scripts.record_scene``
+writes the sequence folder, ``python -m perception.track`` tracks it, and the result is
+compared with the simulation's ``groundtruth_mesh.npz`` (the metric of ``sim.ground_truth``). Outputs: the sequence,
 EST.npz, the mesh drawn over every frame, an error-over-time plot and summary.json.
 """
 
@@ -19,8 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from perception import track
-from sim import record
+from launch_scripts import record_scene, track
 from sim.evaluation.figures import error_over_time
 from sim.ground_truth import error_summary, vertex_errors
 
@@ -40,7 +39,7 @@ def main(argv=None) -> int:
     if seq.exists():
         shutil.rmtree(seq)  # the demo's own output from an earlier run
     args.out.mkdir(parents=True, exist_ok=True)
-    status = record.main([args.scene, str(seq), "--frames", str(args.frames), "--seed", str(args.seed)])
+    status = record_scene.main([args.scene, str(seq), "--frames", str(args.frames), "--seed", str(args.seed)])
     if status:
         return status
     est_path = args.out / "est.npz"

@@ -442,3 +442,21 @@ class SequenceWriter:
         if uv.shape != (v.shape[1], 2):
             raise ValueError(f"SequenceWriter.close: groundtruth uv must be ({v.shape[1]}, 2), got {uv.shape}")
         return {"vertices": v, "faces": f.astype(np.int64), "uv": uv}
+
+
+def read_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool mask from an 8-bit PNG, non-zero on the object."""
+    if not path.is_file():
+        raise ValueError(f"init mask {path}: no such file")
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise ValueError(f"init mask {path}: not a readable image")
+    if img.ndim == 3:
+        img = img.max(axis=2)
+    if img.shape != shape:
+        raise ValueError(f"init mask {path}: size {img.shape[1]}x{img.shape[0]} differs from the frames' "
+                         f"{shape[1]}x{shape[0]}")
+    mask = img > 0
+    if not mask.any():
+        raise ValueError(f"init mask {path}: empty (no non-zero pixel)")
+    return mask

@@ -34,7 +34,7 @@ from perception.coarse import MIN_RESPONSE, FrameMemory
 from perception.colour_model import ColourModel
 from perception.confidence import Assessment, assess
 from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, MotionPriorTerm
-from perception.features import make_correspondences, resolve_kind
+from perception.features import FEATURE_KINDS, make_correspondences, resolve_kind
 from perception.geometry import Undistorter, face_normals, pixel_index, project, rays
 from perception.initial_mesh import InitialisationError, mesh_from_mask, place_mesh, spacing_for
 from perception.mesh import CanonicalMesh, barycentric_matrix
@@ -42,7 +42,7 @@ from perception.observation import Observation, grey_of, observe
 from perception.raster import faces_mask
 from perception.registration import GlobalRegistration
 from perception.segmentation import SegmentationConfig, find_by_colour, find_object, segment_tracked
-from perception.solver import SemiImplicitSolver
+from perception.solver import METHODS, SemiImplicitSolver
 from perception.visibility import NO_DEPTH, OCCLUDED, VISIBLE, classify_vertices, face_states
 
 log = logging.getLogger(__name__)
@@ -130,12 +130,12 @@ class TrackerConfig:
     use_depth: bool = True
     use_boundary: bool = True
     alpha: float = 0.5
-    solver: str = "conjugate"
+    solver: str = field(default="conjugate", metadata={"choices": METHODS})
     max_iterations: int = 10
     cg_iterations: int = 8
     tolerance_m: float = 1e-4
     min_predicted_decrease: float = 0.0
-    features: str = "auto"
+    features: str = field(default="auto", metadata={"choices": FEATURE_KINDS})
     max_features: int = 500
     match_gate_px: float = 40.0
     match_keep_fraction: float = 0.5

@@ -12,7 +12,9 @@
 - ``sim.evaluation``: tracker runs on recorded scenes, their scores (also while handled),
   the CPD peer and figures.
 - ``sim.cloth_mesh``, ``sim.textures``: cloth meshes and textures generated in code.
-- ``python -m sim.record``: write a scene as a sequence folder (``perception.sequence``).
+- ``sim.scene``: the one scene interface; ``sim.frame_source``: a scene as a frame source;
+  ``sim.recorder``: a scene written as a sequence folder with ground truth.
+- ``sim.laundry``: the laundry-grasping task (scene, controller policy, judge).
 
 PyBullet is imported only when a ``ClothPhysics`` is created, so the pure parts
 (meshes, noise, ground truth) work without it.

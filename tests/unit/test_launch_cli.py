@@ -54,3 +54,48 @@ def test_usage_errors_are_one_line(capsys):
         parser.parse_args(["--n", "0"])
     assert stop.value.code == 2
     assert capsys.readouterr().err == "tool: error: argument --n: expected a positive integer, got 0\n"
+
+
+def test_tracker_options_come_from_the_config_fields():
+    import dataclasses
+
+    from launch_scripts import perception_service, track
+    from launch_scripts.cli import field_docs
+    from perception.tracker import TrackerConfig
+
+    docs = field_docs(TrackerConfig)
+    scalar = [f.name for f in dataclasses.fields(TrackerConfig)
+              if isinstance(getattr(TrackerConfig(), f.name), (bool, int, float, str, tuple))]
+    assert set(scalar) <= set(docs), "every field the command line offers is described in the docstring"
+    for parser in (track.build_parser(), perception_service.build_parser()):
+        dests = {a.dest: a for a in parser._actions}
+        assert set(scalar) <= set(dests)
+        assert docs["lambda_d"] in dests["lambda_d"].help and "(default 0.6)" in dests["lambda_d"].help
+        assert "realtime 6" in dests["max_iterations"].help
+    parse = track.build_parser().parse_args
+    from launch_scripts.cli import tracker_config_from_args
+
+    # the options the command lines have always had keep their names and meaning
+    config = tracker_config_from_args(parse(["SEQ", "-o", "x.npz", "--spacing-m", "0.015", "--no-boundary",
+                                             "--features", "klt", "--lambda-c", "2", "--max-iterations", "3"]))
+    assert config == TrackerConfig(spacing_m=0.015, use_boundary=False, features="klt", lambda_c=2.0, max_iterations=3)
+    config = tracker_config_from_args(parse(["SEQ", "-o", "x.npz", "--preset", "realtime", "--no-depth",
+                                             "--outlier-radii-m", "0.1", "0.03"]))
+    assert config == TrackerConfig.realtime(use_depth=False, outlier_radii_m=(0.1, 0.03))
+    assert tracker_config_from_args(parse(["SEQ", "-o", "x.npz"])) == TrackerConfig()
+    with pytest.raises(ValueError, match="lambda_d"):
+        tracker_config_from_args(parse(["SEQ", "-o", "x.npz", "--lambda-d", "-1"]))
+
+
+def test_field_docs_read_grouped_and_continued_entries():
+    from launch_scripts.cli import field_docs
+
+    class Example:
+        """Summary.
+
+        a, b : weights
+            of two things
+        c : one thing
+        """
+
+    assert field_docs(Example) == {"a": "weights of two things", "b": "weights of two things", "c": "one thing"}

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from ipc.messages import CameraInfo
+from launch_scripts.track import main
 from perception.sequence import SequenceWriter
-from perception.track import main
 from tests.render import frame_of, grid_surface, plane_points, texture
 
 CAM = CameraInfo.from_fov(320, 240, np.deg2rad(45))

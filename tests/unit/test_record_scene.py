@@ -1,4 +1,4 @@
-"""python -m sim.record: writes a sequence that perception.sequence reads back, with ground truth."""
+"""python -m launch_scripts.record_scene: writes a sequence that perception.sequence reads back, with ground truth."""
 
 import subprocess
 import sys
@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
+from launch_scripts.record_scene import main
 from perception.sequence import open_sequence
-from sim.record import main
 from sim.scenes import make_scene
 
 REPO = Path(__file__).resolve().parents[2]
@@ -83,11 +83,11 @@ def test_bad_arguments_give_one_line(tmp_path, capsys, args, message):
 
 
 def test_bad_argument_from_the_shell_has_no_traceback(tmp_path):
-    result = subprocess.run([sys.executable, "-m", "sim.record", "sofa", str(tmp_path / "out")], cwd=REPO,
-                            capture_output=True, text=True, timeout=120, check=False)
+    result = subprocess.run([sys.executable, "-m", "launch_scripts.record_scene", "sofa", str(tmp_path / "out")],
+                            cwd=REPO, capture_output=True, text=True, timeout=120, check=False)
     assert result.returncode == 2
-    assert result.stderr.strip() == ("python -m sim.record: error: unknown scene 'sofa'; expected one of "
-                                     "gripper_corner_move, occluder_sweep, poster_bend, shirt_chair, "
+    assert result.stderr.strip() == ("python -m launch_scripts.record_scene: error: unknown scene 'sofa'; "
+                                     "expected one of gripper_corner_move, occluder_sweep, poster_bend, shirt_chair, "
                                      "shirt_textureless_rotate, table_lift, towel_sway")
 
 

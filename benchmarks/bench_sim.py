@@ -1,6 +1,6 @@
 """Measure the simulation: stretch while hanging, render time, recording time.
 
-    python -m sim.benchmark [--scene poster_bend] [--frames 60] [--renders 30]
+    python benchmarks/bench_sim.py [--scene poster_bend] [--frames 60] [--renders 30]
 
 It also times a moving occluder (``occluder_sweep``) drawn as the scenes draw it, with
 ``sim.raster``, against the same occluder mesh as a PyBullet visual body, which makes the
@@ -17,13 +17,16 @@ import os
 import sys
 import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 
-from perception.sequence import SequenceWriter
-from sim.cloth_mesh import edge_strain, rectangle_cloth, tshirt_cloth
-from sim.physics import ClothMaterial, ClothPhysics
-from sim.scenes import PAPER_SCENES, make_scene
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from perception.sequence import SequenceWriter  # noqa: E402
+from sim.cloth_mesh import edge_strain, rectangle_cloth, tshirt_cloth  # noqa: E402
+from sim.physics import ClothMaterial, ClothPhysics  # noqa: E402
+from sim.scenes import PAPER_SCENES, make_scene  # noqa: E402
 
 
 def hanging_strain(kind: str, seconds: float = 1.0) -> np.ndarray:
@@ -99,7 +102,7 @@ def handled_render_ms(name: str, renders: int, seed: int = 0) -> tuple[float, fl
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m sim.benchmark", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python benchmarks/bench_sim.py", description=__doc__.split("\n\n")[0])
     parser.add_argument("--scene", choices=PAPER_SCENES, default="poster_bend")
     parser.add_argument("--frames", type=int, default=60)
     parser.add_argument("--renders", type=int, default=30)
