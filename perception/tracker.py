@@ -32,7 +32,13 @@ from ipc.messages import MeshEstimate, RGBDFrame
 from perception.camera import Undistorter, pixel_index, project, rays
 from perception.confidence import Assessment, assess
 from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, MotionPriorTerm
-from perception.features import make_correspondences, resolve_kind
+from perception.features import (
+    CombinedCorrespondences,
+    DescriptorCorrespondences,
+    KLTCorrespondences,
+    make_correspondences,
+    resolve_kind,
+)
 from perception.initial_mesh import InitialisationError, mesh_from_mask, object_area_m2, place_mesh, spacing_for
 from perception.appearance import AppearanceModel
 from perception.colour_model import ColourModel
@@ -99,6 +105,8 @@ class TrackerConfig:
         less than this fraction of it (0: never; saves time on noisy data)
     features : "auto" (SURF if available, else SIFT), "surf", "sift", "orb" or "klt"
     max_features : features detected per frame
+    min_descriptor_features : when the first frame shows fewer descriptor features on the
+        object than this (a plain or faintly textured object), KLT points track it as well
     match_gate_px : a match must lie within this distance of its predicted location
     match_keep_fraction : the paper keeps the best half of the matches
     match_previous_frame : also match the previous frame's features (bound through the estimate)
@@ -137,6 +145,7 @@ class TrackerConfig:
     min_predicted_decrease: float = 0.0
     features: str = "auto"
     max_features: int = 500
+    min_descriptor_features: int = 60
     match_gate_px: float = 40.0
     match_keep_fraction: float = 0.5
     match_previous_frame: bool = True
@@ -335,6 +344,10 @@ class MeshTracker:
             self._corr = make_correspondences(cfg.features, cfg.max_features, cfg.match_gate_px,
                                               cfg.match_keep_fraction, cfg.match_previous_frame)
             self._corr.initialise(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
+            if isinstance(self._corr, DescriptorCorrespondences) and self._corr.n_model < cfg.min_descriptor_features:
+                log.info("%d descriptor features on the object: KLT points track it as well", self._corr.n_model)
+                self._corr = CombinedCorrespondences(self._corr, KLTCorrespondences(cfg.max_features))
+                self._corr.points.initialise(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
         self.last_observation = obs
         self._memory.push(self._memory.small(obs.grey))
         visible = classify_vertices(V, frame.depth_m, frame.camera.K, cfg.occlusion_margin_m, frame.occluder_mask) == VISIBLE
