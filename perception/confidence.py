@@ -120,6 +120,6 @@ def assess(vertices: np.ndarray, edges: np.ndarray, rest_length_m: float, visibl
     stretch = float(np.median(lengths))
     crushed = float(np.mean(lengths < 0.5))
     return Assessment(depth=_ramp(depth, 0.85), coverage=_ramp(coverage, 0.8), precision=_ramp(precision, 0.85),
-                      appearance=float(appearance), unstretched=float(np.clip((1.6 - stretch) / 0.4, 0.0, 1.0)),
+                      appearance=float(appearance), unstretched=float(np.clip((1.35 - stretch) / 0.25, 0.0, 1.0)),
                       uncrumpled=float(np.clip((0.15 - crushed) / 0.09, 0.0, 1.0)),
                       seen=_ramp(seen.sum() / max(n, 1), 0.25))
