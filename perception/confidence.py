@@ -20,6 +20,10 @@ that is right scores about 1 on it:
 - ``unstretched``: cloth hardly stretches, so a mesh whose edges are much longer than in
   the canonical mesh (median over the edges) has been pulled onto something else, such as
   a surface farther away;
+- ``uncrumpled``: a mesh that cannot follow the cloth (a fold that turns part of it over,
+  which a single smooth sheet cannot represent) crushes the edges along the fold; cloth
+  bunched finer than the mesh shortens a few edges, but rarely a tenth of them to under
+  half their length;
 - ``seen``: how much of the mesh the camera sees (a mesh almost entirely hidden is carried
   by its motion prior, not by data).
 
@@ -48,11 +52,13 @@ class Assessment:
     precision: float
     appearance: float
     unstretched: float
+    uncrumpled: float
     seen: float
 
     @property
     def confidence(self) -> float:
-        product = self.depth * self.coverage * self.precision * self.appearance * self.unstretched * self.seen
+        product = (self.depth * self.coverage * self.precision * self.appearance * self.unstretched * self.uncrumpled
+                   * self.seen)
         return float(np.clip(product, 0.0, 1.0))
 
     def lost(self, threshold: float) -> bool:
@@ -110,7 +116,10 @@ def assess(vertices: np.ndarray, edges: np.ndarray, rest_length_m: float, visibl
         coverage = (footprint.astype(bool) & small).sum() / area
     if leak > 0.3:
         coverage = 1.0
-    stretch = float(np.median(np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1))) / rest_length_m
+    lengths = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1) / rest_length_m
+    stretch = float(np.median(lengths))
+    crushed = float(np.mean(lengths < 0.5))
     return Assessment(depth=_ramp(depth, 0.85), coverage=_ramp(coverage, 0.8), precision=_ramp(precision, 0.85),
-                      appearance=float(appearance), unstretched=float(np.clip((1.6 - stretch) / 0.4, 0.0, 1.0)),
+                      appearance=float(appearance), unstretched=float(np.clip((1.35 - stretch) / 0.25, 0.0, 1.0)),
+                      uncrumpled=float(np.clip((0.15 - crushed) / 0.09, 0.0, 1.0)),
                       seen=_ramp(seen.sum() / max(n, 1), 0.25))

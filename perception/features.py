@@ -441,6 +441,35 @@ class KLTCorrespondences:
             self.active = self.active.join(fresh)
 
 
+class CombinedCorrespondences:
+    """Descriptor matches and KLT points together, for an object whose texture gives the
+    descriptors too little to hold on to (a foam tube, a faintly printed cloth): the
+    descriptors keep the mesh from drifting, the points keep it dense."""
+
+    def __init__(self, descriptors: DescriptorCorrespondences, points: KLTCorrespondences):
+        self.descriptors, self.points = descriptors, points
+
+    @property
+    def n_model(self) -> int:
+        return self.descriptors.n_model + self.points.n_model
+
+    def initialise(self, grey, mask, V, faces, K):
+        self.descriptors.initialise(grey, mask, V, faces, K)
+        self.points.initialise(grey, mask, V, faces, K)
+
+    def prepare(self, grey, V_pred, faces, K, predicted_mask=None):
+        return self.points.prepare(grey, V_pred, faces, K, predicted_mask)
+
+    def match(self, grey, mask, V_pred, faces, K, prepared, face_state=None):
+        found = [self.descriptors.match(grey, mask, V_pred, faces, K, None, face_state),
+                 self.points.match(grey, mask, V_pred, faces, K, prepared, face_state)]
+        return tuple(np.concatenate(parts) for parts in zip(*found))
+
+    def update(self, grey, mask, V, faces, K):
+        self.descriptors.update(grey, mask, V, faces, K)
+        self.points.update(grey, mask, V, faces, K)
+
+
 def make_correspondences(kind: str, max_features: int, gate_px: float, keep_fraction: float, match_previous: bool):
     """The correspondence source for a feature kind (see FEATURE_KINDS)."""
     kind = resolve_kind(kind)

@@ -84,15 +84,10 @@ def solid_mask(mask: np.ndarray, close_px: int) -> np.ndarray:
     return (padded[1:-1, 1:-1] != 2)
 
 
-def spacing_for(obs: Observation, target_vertices: int, min_px: float = 4.0) -> float:
-    """The mesh spacing, metres, that gives the object of ``obs`` about ``target_vertices`` vertices.
-
-    The object's area is the sum of its pixels' footprints on its fitted plane (a pixel at
-    depth z covers (z / fx)(z / fy) square metres facing the camera, more on a tilted
-    plane); a vertex of the hexagonal grid stands for s^2 sqrt(3) / 2 of it. The spacing
-    is kept at ``min_px`` pixels or more at the object's median depth: finer than that, the
-    image has nothing to say about each triangle.
-    """
+def object_area_m2(obs: Observation) -> float:
+    """The object's area in square metres: the sum of its pixels' footprints on its fitted
+    plane (a pixel at depth z covers (z / fx)(z / fy) square metres facing the camera, more
+    on a tilted plane)."""
     ys, xs = np.nonzero(obs.mask & (obs.depth_m > 0))
     if len(xs) < 30:
         raise InitialisationError(f"the object mask has {len(xs)} pixels with depth; at least 30 are needed")
@@ -100,8 +95,18 @@ def spacing_for(obs: Observation, target_vertices: int, min_px: float = 4.0) -> 
     r = rays(np.column_stack([xs, ys]).astype(np.float64), obs.K)
     _, _, _, n = object_frame(_object_points(obs))
     facing = np.abs(r @ n) / np.linalg.norm(r, axis=1)  # cosine between each pixel's ray and the plane's normal
-    area = float(np.sum(z * z / (obs.K[0, 0] * obs.K[1, 1]) / np.maximum(facing, 0.2)))
-    spacing = np.sqrt(2.0 * area / (np.sqrt(3.0) * target_vertices))
+    return float(np.sum(z * z / (obs.K[0, 0] * obs.K[1, 1]) / np.maximum(facing, 0.2)))
+
+
+def spacing_for(obs: Observation, target_vertices: int, min_px: float = 4.0) -> float:
+    """The mesh spacing, metres, that gives the object of ``obs`` about ``target_vertices`` vertices.
+
+    A vertex of the hexagonal grid stands for s^2 sqrt(3) / 2 of the object's area
+    (``object_area_m2``). The spacing is kept at ``min_px`` pixels or more at the object's
+    median depth: finer than that, the image has nothing to say about each triangle.
+    """
+    spacing = np.sqrt(2.0 * object_area_m2(obs) / (np.sqrt(3.0) * target_vertices))
+    z = obs.depth_m[obs.mask & (obs.depth_m > 0)]
     return float(max(spacing, min_px * float(np.median(z)) / obs.K[0, 0]))
 
 

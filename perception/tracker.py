@@ -34,9 +34,16 @@ from perception.coarse import MIN_RESPONSE, FrameMemory
 from perception.colour_model import ColourModel
 from perception.confidence import Assessment, assess
 from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, MotionPriorTerm
-from perception.features import FEATURE_KINDS, make_correspondences, resolve_kind
+from perception.features import (
+    FEATURE_KINDS,
+    CombinedCorrespondences,
+    DescriptorCorrespondences,
+    KLTCorrespondences,
+    make_correspondences,
+    resolve_kind,
+)
 from perception.geometry import Undistorter, face_normals, pixel_index, project, rays
-from perception.initial_mesh import InitialisationError, mesh_from_mask, place_mesh, spacing_for
+from perception.initial_mesh import InitialisationError, mesh_from_mask, object_area_m2, place_mesh, spacing_for
 from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
 from perception.raster import faces_mask
@@ -99,6 +106,8 @@ class TrackerConfig:
         less than this fraction of it (0: never; saves time on noisy data)
     features : "auto" (SURF if available, else SIFT), "surf", "sift", "orb" or "klt"
     max_features : features detected per frame
+    min_descriptor_features : when the first frame shows fewer descriptor features on the
+        object than this (a plain or faintly textured object), KLT points track it as well
     match_gate_px : a match must lie within this distance of its predicted location
     match_keep_fraction : the paper keeps the best half of the matches
     match_previous_frame : also match the previous frame's features (bound through the estimate)
@@ -137,6 +146,7 @@ class TrackerConfig:
     min_predicted_decrease: float = 0.0
     features: str = field(default="auto", metadata={"choices": FEATURE_KINDS})
     max_features: int = 500
+    min_descriptor_features: int = 60
     match_gate_px: float = 40.0
     match_keep_fraction: float = 0.5
     match_previous_frame: bool = True
@@ -335,6 +345,10 @@ class MeshTracker:
             self._corr = make_correspondences(cfg.features, cfg.max_features, cfg.match_gate_px,
                                               cfg.match_keep_fraction, cfg.match_previous_frame)
             self._corr.initialise(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
+            if isinstance(self._corr, DescriptorCorrespondences) and self._corr.n_model < cfg.min_descriptor_features:
+                log.info("%d descriptor features on the object: KLT points track it as well", self._corr.n_model)
+                self._corr = CombinedCorrespondences(self._corr, KLTCorrespondences(cfg.max_features))
+                self._corr.points.initialise(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
         self.last_observation = obs
         self._memory.push(self._memory.small(obs.grey))
         visible = classify_vertices(V, frame.depth_m, frame.camera.K, cfg.occlusion_margin_m, frame.occluder_mask) == VISIBLE
@@ -442,14 +456,16 @@ class MeshTracker:
         return estimate
 
     def _reacquire(self, frame: RGBDFrame, grey: np.ndarray, t0: float) -> MeshEstimate | None:
-        """Look for the object anywhere in ``frame`` and fit the mesh there; the estimate if it
-        is not lost (and the tracker then goes on from it), else None.
+        """Look for the object anywhere in ``frame``; the estimate if it is found and not lost
+        (the tracker then goes on from it), else None.
 
-        The mesh is placed by global registration of the first frame's features
-        (``perception.registration``), or, on a cloth without enough texture for that, on
-        the object that depth segmentation finds, as at initialisation. Then the frame is
-        solved from there as an initialisation is, with the registration's matches as
-        correspondences."""
+        By global registration of the first frame's features (``perception.registration``)
+        the canonical mesh is placed where its material points are, and the frame is solved
+        from there with the registration's matches as correspondences. On a cloth without
+        enough texture for that, the object is segmented again (by its colour, else by
+        depth) and a new mesh is built on it, as at initialisation: which material point
+        lies where cannot be known then, so the estimate comes with a new canonical mesh
+        rather than one whose material coordinates would be a guess."""
         cfg = self.config
         K = frame.camera.K
         faces = self.mesh.faces
@@ -457,20 +473,9 @@ class MeshTracker:
         search = None if occluder is None else ~occluder
         found = self._registration.register(grey, frame.depth_m, self._good_V, faces, K, search) \
             if self._registration is not None else None
-        if found is not None:
-            V0 = found.apply(self._good_V)
-        else:
-            mask = find_by_colour(frame.depth_m, frame.rgb, self._colour, cfg.segmentation)
-            if not mask.any():
-                mask = find_object(frame.depth_m, K, cfg.segmentation, self._rng)
-            if occluder is not None:
-                mask &= ~occluder
-            if not mask.any():
-                return None
-            try:
-                V0 = place_mesh(self.mesh, observe(frame, mask, cfg.depth_window_px, grey=grey))
-            except InitialisationError:
-                return None
+        if found is None:
+            return self._reinitialise_on_segment(frame, t0)
+        V0 = found.apply(self._good_V)
         h, w = frame.depth_m.shape
         z = V0[:, 2]
         segment = segment_tracked(frame.depth_m, faces_mask(project(V0, K), faces, (h, w)),
@@ -501,9 +506,44 @@ class MeshTracker:
             self._corr.initialise(obs.grey, self._feature_mask(mask), V, faces, K)
         self.lost_streak = 0
         self.reacquisitions += 1
-        log.info("frame %d: object re-acquired by %s (confidence %.2f)", frame.seq,
-                 "registration" if found is not None else "segmentation", assessment.confidence)
+        log.info("frame %d: object re-acquired by registration (confidence %.2f)", frame.seq, assessment.confidence)
         return self._estimate(frame, V, res.energies, res.iterations, assessment, t0, visible)
+
+    def _reinitialise_on_segment(self, frame: RGBDFrame, t0: float) -> MeshEstimate | None:
+        """A new mesh on the object segmented afresh (by its colour, else by depth); the
+        estimate if it is not lost, else None, the tracker then left as it was."""
+        cfg = self.config
+        mask = find_by_colour(frame.depth_m, frame.rgb, self._colour, cfg.segmentation) \
+            if self._colour is not None else np.zeros(frame.depth_m.shape, bool)
+        if not mask.any():
+            mask = find_object(frame.depth_m, frame.camera.K, cfg.segmentation, self._rng)
+        if frame.occluder_mask is not None:
+            mask &= ~frame.occluder_mask
+        if not mask.any():
+            return None
+        # A cloth folds, so less of it may show, but it does not grow: a far larger surface
+        # of the right colour (a wall, the floor) is not the object.
+        try:
+            area = object_area_m2(observe(frame, mask, cfg.depth_window_px))
+        except InitialisationError:
+            return None
+        rest = 0.25 * np.sqrt(3.0) * self.mesh.spacing_m ** 2 * len(self.mesh.faces)
+        if not 0.15 * rest <= area <= 1.5 * rest:
+            log.debug("frame %d: segmented object of %.3f m^2 against the mesh's %.3f m^2: not it", frame.seq, area, rest)
+            return None
+        saved = dict(self.__dict__)
+        counters = (self.reacquisitions + 1, self.coarse_corrections)
+        try:
+            estimate = self._initialise(frame, mask, None)
+        except TrackingError:
+            estimate = None
+        if estimate is None or estimate.lost:
+            self.__dict__.update(saved)
+            return None
+        self.reacquisitions, self.coarse_corrections = counters
+        log.info("frame %d: object found again by segmentation; new mesh of %d vertices", frame.seq,
+                 self.mesh.n_vertices)
+        return replace(estimate, timing_ms=(time.perf_counter() - t0) * 1000.0)
 
     def _coarse_prediction(self, V_pred: np.ndarray, small: np.ndarray, frame: RGBDFrame) -> np.ndarray:
         """The best of several predictions for this frame (N, 3): ``V_pred`` (constant velocity),
@@ -630,12 +670,13 @@ class MeshTracker:
     # -- outputs -------------------------------------------------------------------------
 
     def _assess(self, V: np.ndarray, frame: RGBDFrame, visible: np.ndarray, object_mask: np.ndarray,
-                leak: float = 0.0) -> Assessment:
+                leak: float = 0.0, compare_appearance: bool = True) -> Assessment:
         """The evidence for estimate ``V`` (N, 3) in ``frame`` (``perception.confidence``);
         ``leak`` is the segmentation's (``perception.segmentation.Segment``)."""
         K = frame.camera.K
-        likeness = self._appearance.likeness(frame.rgb, V, self.mesh.faces, K, visible) \
-            if self._appearance is not None else 1.0
+        likeness = 1.0
+        if compare_appearance and self._appearance is not None:
+            likeness = self._appearance.likeness(frame.rgb, V, self.mesh.faces, K, visible)
         assessment = assess(V, self._edges, self.mesh.spacing_m, visible, frame.depth_m, object_mask,
                             K, self.config.confidence_tol_m, likeness, leak)
         self.last_assessment = assessment

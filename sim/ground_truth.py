@@ -8,8 +8,8 @@ the distance to where that material point has moved. Errors are reported as mean
 Under occlusion (``hidden_behind_occluder``, ``occluded_area_ratio``): an estimated
 vertex is truly hidden when its material point projects onto the occluder's exact mask
 and lies behind the occluder there; the faces whose three vertices are hidden are the
-occluded part of the mesh, and their area, over the same faces' area in the tracker's
-canonical (rest) mesh, tells whether that part kept its size.
+occluded part of the mesh, and their area, over the same faces' area where their material
+points truly are, tells whether that part kept its size.
 
 Arrays: points and vertices are (N, 3) / (T, N, 3) float, metres, all in one frame
 (the camera frame for recorded sequences); faces are (F, 3) int vertex ids.
@@ -195,15 +195,19 @@ def hidden_behind_occluder(points_cam: np.ndarray, occluder_mask: np.ndarray, oc
     return hidden
 
 
-def occluded_area_ratio(vertices: np.ndarray, canonical: np.ndarray, faces: np.ndarray,
+def occluded_area_ratio(vertices: np.ndarray, reference: np.ndarray, faces: np.ndarray,
                         hidden: np.ndarray) -> tuple[float, float]:
     """Does the occluded part of an estimated mesh keep its area?
 
-    vertices : (N, 3) the estimate in one frame; canonical : (N, 3) the tracker's rest mesh
-    faces : (F, 3) int; hidden : (N,) bool, the vertices truly hidden (``hidden_behind_occluder``)
-    returns (ratio, canonical_area_m2): the summed area of the faces whose three vertices are
-    hidden, over the same faces' area in ``canonical``; (nan, 0.0) when no face is hidden.
-    1 means the hidden part kept its size; below 1 it was squeezed, above stretched.
+    vertices : (N, 3) the estimate in one frame; reference : (N, 3) where its vertices'
+    material points truly are in that frame (``material_point_tracks``), or the tracker's
+    rest mesh; faces : (F, 3) int; hidden : (N,) bool, the vertices truly hidden
+    (``hidden_behind_occluder``)
+    returns (ratio, reference_area_m2): the summed area of the faces whose three vertices are
+    hidden, over the same faces' area in ``reference``; (nan, 0.0) when no face is hidden.
+    1 means the hidden part has its true size; below 1 it was squeezed, above stretched.
+    Against the true positions rather than the rest mesh, cloth that is really bunched
+    (in a gripper's fingers, or crumpled) does not count as squeezed.
     """
     hid = np.asarray(hidden, dtype=bool)
     v = check_points("vertices", vertices, allow_empty=True)
@@ -213,9 +217,9 @@ def occluded_area_ratio(vertices: np.ndarray, canonical: np.ndarray, faces: np.n
     covered = f[hid[f].all(axis=1)]
     if len(covered) == 0:
         return float("nan"), 0.0
-    rest = float(face_areas(canonical, covered).sum())
+    rest = float(face_areas(reference, covered).sum())
     if rest <= 0:
-        raise ValueError("occluded_area_ratio: the hidden faces have no area in the canonical mesh")
+        raise ValueError("occluded_area_ratio: the hidden faces have no area in the reference")
     return float(face_areas(v, covered).sum()) / rest, rest
 
 

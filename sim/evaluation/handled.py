@@ -173,7 +173,7 @@ def score_run(rec: SceneRecording, estimates: list, failure: str = "") -> Handle
             else:
                 h = np.zeros(n, bool)
             hidden.append(h)
-            area_ratio[t], hidden_area[t] = occluded_area_ratio(est.vertices, est.canonical, est.faces, h)
+            area_ratio[t], hidden_area[t] = occluded_area_ratio(est.vertices, targets[t - start], est.faces, h)
             mesh_area[t] = face_areas(est.canonical, est.faces).sum()
             if est.visible is not None:
                 shown_hidden[t] = int((est.visible & h).sum())

@@ -160,9 +160,15 @@ def test_an_estimate_pushed_onto_the_wrong_surface_is_flagged_and_the_sheet_foun
     history = []
     for k in range(1, 5):
         e = tracker.track(sheet_before_a_wall(np.zeros(3), sheet_tex, wall_tex, k))
-        err = np.linalg.norm(e.vertices - e0.vertices, axis=1)
-        history.append((err.mean(), e.confidence, e.lost))
-        assert err.mean() < 0.01 or e.lost, f"frame {k}: {err.mean() * 1000:.0f} mm off with confidence {e.confidence:.2f}"
+        if len(e.vertices) == len(e0.vertices):
+            err = np.linalg.norm(e.vertices - e0.vertices, axis=1).mean()
+        else:  # a new mesh on the sheet found again: how far its vertices are from the sheet
+            outside = np.clip(np.abs(e.vertices[:, :2] - CENTRE[:2]) - np.array(SIZE) / 2, 0.0, None)
+            err = np.mean(np.abs(e.vertices[:, 2] - CENTRE[2]) + np.linalg.norm(outside, axis=1))
+        history.append((err, e.confidence, e.lost))
+        assert err < 0.01 or e.lost, f"frame {k}: {err * 1000:.0f} mm off with confidence {e.confidence:.2f}"
     back = [k for k, (err, _, lost) in enumerate(history) if err < 0.01 and not lost]
     assert back and back[0] <= 2, history
     assert tracker.reacquisitions >= 1
+    # A textured sheet is registered again: its canonical mesh (material coordinates) is kept.
+    assert (len(tracker.mesh.canonical) == len(e0.canonical)) or not textured
