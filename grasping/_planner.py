@@ -46,7 +46,6 @@ from perception.geometry import (
 
 log = logging.getLogger(__name__)
 
-MODES = ("corner", "boundary", "highest")
 EDGE_APPROACHES = ("pinch", "normal")
 
 
@@ -60,9 +59,10 @@ class GraspPlannerConfig:
 
     Attributes
     ----------
-    mode : "corner" (corners of the canonical outline followed through the
-        estimate), "boundary" (points evenly spaced along the outline) or
-        "highest" (the highest reachable vertex along ``up_world``)
+    kind : the grasp kind planned, one of ``GraspPlan.KINDS``: "corner" (corners of
+        the canonical outline followed through the estimate), "boundary" (points
+        evenly spaced along the outline) or "highest" (the highest reachable vertex
+        along ``up_world``)
     edge_approach : for corner and boundary grasps, "pinch" (approach in the
         cloth's tangent plane, perpendicular to the outline, from outside the cloth;
         fingers close across the cloth's thickness) or "normal" (approach against
@@ -94,7 +94,7 @@ class GraspPlannerConfig:
         hangs), and its layers are not judged
     weight_visibility, weight_clearance, weight_confidence, weight_single_layer :
         float >= 0, weights of the score terms; visibility and single_layer count only
-        when a frame is given (single_layer in corner and boundary modes), and
+        when a frame is given (single_layer in corner and boundary kinds), and
         ``weight_clearance + weight_confidence`` must be > 0
     min_score : float in [0, 1], plans scoring lower are dropped
     min_confidence : float in [0, 1], estimates less confident give no plans
@@ -109,7 +109,7 @@ class GraspPlannerConfig:
         chords that measure the outline's turn and direction
     """
 
-    mode: str = "corner"
+    kind: str = "corner"
     edge_approach: str = "pinch"
     T_world_cam: np.ndarray | None = None
     up_world: np.ndarray | None = None
@@ -134,8 +134,8 @@ class GraspPlannerConfig:
     outline_window_spacings: float = DEFAULT_WINDOW_SPACINGS
 
     def __post_init__(self):
-        if self.mode not in MODES:
-            raise ValueError(f"Expected mode in {MODES}, got {self.mode!r}")
+        if self.kind not in GraspPlan.KINDS:
+            raise ValueError(f"Expected kind in {GraspPlan.KINDS}, got {self.kind!r}")
         if self.edge_approach not in EDGE_APPROACHES:
             raise ValueError(f"Expected edge_approach in {EDGE_APPROACHES}, got {self.edge_approach!r}")
         set_ = object.__setattr__
@@ -324,9 +324,9 @@ class _Candidates:
 def _candidates(
     estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerConfig, reachable_vertex: np.ndarray | None
 ) -> _Candidates | str:
-    """Candidate grasps of ``config.mode``, or a one-line reason why there are none.
+    """Candidate grasps of ``config.kind``, or a one-line reason why there are none.
 
-    ``reachable_vertex`` (N,) bool, used by the "highest" mode only: which
+    ``reachable_vertex`` (N,) bool, used by the "highest" kind only: which
     vertices lie inside the workspace.
     """
     V = estimate.vertices
@@ -335,7 +335,7 @@ def _candidates(
     # the side the gripper can come from and the side the fingers close onto.
     toward_cam = np.where(np.sum(normals * -V, axis=1, keepdims=True) < 0, -normals, normals)
 
-    if config.mode == "highest":
+    if config.kind == "highest":
         height = V @ config.up_cam
         choices = np.flatnonzero(reachable_vertex)
         if choices.size == 0:
@@ -350,7 +350,7 @@ def _candidates(
     outline = model.outline
     if outline is None:
         return "estimate has no boundary vertices"
-    if config.mode == "corner":
+    if config.kind == "corner":
         rows = outline.corner_rows
         if rows.size == 0:
             sharpest = np.rad2deg(outline.interior_angle_rad.min())
@@ -371,7 +371,7 @@ def _candidates(
         approach, closing = inward, toward_cam[vid]
     else:
         approach, closing = -toward_cam[vid], inward
-    angle = outline.interior_angle_rad[rows] if config.mode == "corner" else np.full(len(rows), np.pi)
+    angle = outline.interior_angle_rad[rows] if config.kind == "corner" else np.full(len(rows), np.pi)
     return _Candidates(vid, positions, approach, closing, has_normal[vid] & has_inward, angle, inward)
 
 
@@ -418,7 +418,7 @@ def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerCo
 
     rejected = {}
     reachable_vertex = None
-    if config.mode == "highest":
+    if config.kind == "highest":
         # Every vertex is a candidate: drop the unreachable ones, then take the highest.
         reachable_vertex = _inside_workspace(estimate.vertices, config)
         if not np.all(reachable_vertex):
@@ -431,7 +431,7 @@ def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerCo
 
     def none_left(rejected):
         causes = ", ".join(f"{n} {cause}" for cause, n in rejected.items())
-        return _empty(f"all {n_candidates} {config.mode} candidates rejected: {causes}", rejected)
+        return _empty(f"all {n_candidates} {config.kind} candidates rejected: {causes}", rejected)
 
     reachable = _inside_workspace(positions, config)
     if np.any(~valid):
@@ -485,7 +485,7 @@ def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerCo
                 opening_width_m=config.opening_width_m,
                 score=float(score[k]),
                 vertex_id=int(vid[k]),
-                kind=config.mode,
+                kind=config.kind,
                 frame_id=estimate.frame_id,
                 timestamp_s=estimate.timestamp_s,
             )
@@ -502,14 +502,14 @@ def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerCo
         )
     if log.isEnabledFor(logging.DEBUG):  # the steps are formatted only for a reader
         log.debug("%d %s grasp(s), best score %.3f at vertex %d; steps above the surface beyond (mm): %s", len(plans),
-                  config.mode, plans[0].score, plans[0].vertex_id, " ".join(f"{t.step_m * 1000:.1f}" for t in terms))
+                  config.kind, plans[0].score, plans[0].vertex_id, " ".join(f"{t.step_m * 1000:.1f}" for t in terms))
     return GraspResult(plans=tuple(plans), terms=tuple(terms), reason="", rejected=rejected)
 
 
 def plan_grasps(estimate: MeshEstimate, config: GraspPlannerConfig | None = None, frame: RGBDFrame | None = None) -> GraspResult:
     """Grasp candidates on a tracked cloth mesh, best first.
 
-    Candidates depend on ``config.mode``: the corners of the canonical outline
+    Candidates depend on ``config.kind``: the corners of the canonical outline
     (found by ``find_corners``) followed through the estimate, points evenly
     spaced along the outline, or the highest reachable vertex. Candidates outside
     the workspace are dropped; the rest are scored by the weighted mean of
@@ -528,11 +528,11 @@ def plan_grasps(estimate: MeshEstimate, config: GraspPlannerConfig | None = None
     Returns
     -------
     GraspResult; its ``plans`` are GraspPlan in ``estimate.frame_id`` with
-    ``kind = config.mode``, positions (3,) metres, unit ``approach`` (gripper z),
+    ``kind = config.kind``, positions (3,) metres, unit ``approach`` (gripper z),
     ``quat_xyzw`` of ``R_cam_gripper`` (columns: closing x, y = z x x, approach
     z; w >= 0), ``opening_width_m`` from the config, score in [0, 1]. Empty with
     a one-line ``reason`` when the estimate is lost or too unconfident, has no
-    boundary (corner and boundary modes), no corners, or no candidate survives.
+    boundary (corner and boundary kinds), no corners, or no candidate survives.
 
     Raises
     ------
@@ -541,7 +541,7 @@ def plan_grasps(estimate: MeshEstimate, config: GraspPlannerConfig | None = None
     """
     config = GraspPlannerConfig() if config is None else config
     _check_inputs(estimate, frame)
-    return _plan(estimate, _build_model(estimate, config, with_outline=config.mode != "highest"), config, frame)
+    return _plan(estimate, _build_model(estimate, config, with_outline=config.kind != "highest"), config, frame)
 
 
 class GraspPlanner:
@@ -565,7 +565,7 @@ class GraspPlanner:
     def _model_for(self, estimate: MeshEstimate) -> _CanonicalModel:
         key = _canonical_key(estimate)
         if key != self._key:
-            # Built with the outline whatever the mode, so that corners() can answer.
+            # Built with the outline whatever the kind, so that corners() can answer.
             self._model = _build_model(estimate, self.config, with_outline=True)
             self._key = key
             log.info(

@@ -29,9 +29,10 @@ import threading
 import time
 from collections import OrderedDict
 
-from grasping._planner import MODES, GraspPlanner, GraspPlannerConfig
+from grasping._planner import GraspPlanner, GraspPlannerConfig
 from ipc.messages import (
     ErrorReply,
+    GraspPlan,
     GraspPlanReply,
     GraspRequest,
     MeshEstimate,
@@ -48,7 +49,7 @@ FRAME_HISTORY = 8
 class PlannerService:
     """Answers grasp requests from the newest estimate; no sockets (see the module docstring).
 
-    config : GraspPlannerConfig; its ``mode`` is ignored, the kinds come from each request
+    config : GraspPlannerConfig; its ``kind`` is ignored, the kinds come from each request
     kinds : kinds this service serves, a subset of ``("corner", "boundary", "highest")``;
         a request's kinds outside it are skipped, and a request with none inside it is
         answered ``invalid``
@@ -63,17 +64,17 @@ class PlannerService:
     merged best first and cut to the request's ``max_candidates``.
     """
 
-    def __init__(self, config: GraspPlannerConfig | None = None, kinds=MODES, max_age_s: float | None = None):
+    def __init__(self, config: GraspPlannerConfig | None = None, kinds=GraspPlan.KINDS, max_age_s: float | None = None):
         config = config if config is not None else GraspPlannerConfig()
         kinds = tuple(kinds)
-        if not kinds or len(set(kinds)) != len(kinds) or any(k not in MODES for k in kinds):
-            raise ValueError(f"Expected kinds: distinct values among {MODES}, got {kinds!r}")
+        if not kinds or len(set(kinds)) != len(kinds) or any(k not in GraspPlan.KINDS for k in kinds):
+            raise ValueError(f"Expected kinds: distinct values among {GraspPlan.KINDS}, got {kinds!r}")
         if max_age_s is not None and not (math.isfinite(max_age_s) and max_age_s > 0):
             raise ValueError(f"Expected max_age_s > 0 or None, got {max_age_s}")
         self.kinds = kinds
         self.max_age_s = max_age_s
         # One planner per kind: each caches its analysis of the canonical mesh.
-        self._planners = {k: GraspPlanner(dataclasses.replace(config, mode=k)) for k in kinds}
+        self._planners = {k: GraspPlanner(dataclasses.replace(config, kind=k)) for k in kinds}
         self.latest: MeshEstimate | None = None
         self._latest_at = -math.inf  # time.monotonic() when ``latest`` arrived
         self._frames: OrderedDict = OrderedDict()

@@ -31,9 +31,10 @@ import threading
 
 import numpy as np
 
-from grasping._planner import EDGE_APPROACHES, MODES, GraspPlannerConfig
+from grasping._planner import EDGE_APPROACHES, GraspPlannerConfig
 from grasping.service import PlannerService, run_planner_service
 from ipc import endpoints
+from ipc.messages import GraspPlan
 from launch_scripts.cli import (
     OneLineParser,
     add_security_arguments,
@@ -59,7 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"REP endpoint to bind (default {endpoints.PLANNER})")
     p.add_argument("--frames", type=_endpoint, default=None,
                    help="RGBDFrame publisher to connect to for the visibility term (default: none)")
-    p.add_argument("--kinds", nargs="+", choices=MODES, default=list(MODES),
+    p.add_argument("--kinds", nargs="+", choices=GraspPlan.KINDS, default=list(GraspPlan.KINDS),
                    help="grasp kinds served (default: all)")
     p.add_argument("--max-estimate-age-s", type=finite_float, default=None,
                    help="answer not_ready when the newest estimate is older than this (default: any age)")

@@ -1,7 +1,7 @@
 """Laundry-grasping trials in simulation, end to end through the ZeroMQ services.
 
     python -m launch_scripts.trials --seeds S [S ...] --json REPORT.json
-        [--mode corner|boundary|highest] [--state STATE] [--cloth KIND] [--workers N]
+        [--kind corner|boundary|highest] [--state STATE] [--cloth KIND] [--workers N]
         [--engine local|ray] [--pictures DIR] [--markdown SUMMARY.md] [--frames N] [--log-dir DIR] [--quiet]
 
 Each seed is one trial (``launch_scripts.trial_runner.trial.run_trial``): a towel or
@@ -40,6 +40,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from ipc.messages import GraspPlan
 from launch_scripts.cli import OneLineParser, positive_int
 from launch_scripts.trial_runner.report import markdown, report, write_json
 from launch_scripts.trial_runner.trial import (
@@ -48,7 +49,7 @@ from launch_scripts.trial_runner.trial import (
     scene_record,
     trial_config_dict,
 )
-from sim.laundry import CLOTH_KINDS, INITIAL_STATES, MODES
+from sim.laundry import CLOTH_KINDS, INITIAL_STATES
 
 log = logging.getLogger("launch_scripts.trials")
 
@@ -75,7 +76,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=_seeds, nargs="+", required=True, metavar="S",
                    help="seeds (integers, or START:STOP[:STEP]); even for development, odd for evaluation")
     p.add_argument("--json", type=Path, required=True, metavar="REPORT.json", help="where to write the report")
-    p.add_argument("--mode", choices=MODES, default="corner", help="grasp kind to request (default corner)")
+    p.add_argument("--kind", "--mode", dest="kind", choices=GraspPlan.KINDS, default="corner",
+                   help="grasp kind to request (default corner; --mode is its earlier name, which the results use)")
     p.add_argument("--state", choices=INITIAL_STATES,
                    help="force this initial state in every scene (default: drawn from the seed)")
     p.add_argument("--cloth", choices=CLOTH_KINDS,
@@ -94,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _lost(seed: int, config: TrialConfig, failure: str) -> dict:
     """The record of a trial whose process died before it could report."""
-    return {"seed": seed, "mode": config.mode, "success": False, "corner_success": False, "failure": failure,
+    return {"seed": seed, "kind": config.kind, "success": False, "corner_success": False, "failure": failure,
             "scene": scene_record(seed, config.scene_options)}
 
 
@@ -231,12 +233,12 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     log_dir = args.log_dir if args.log_dir is not None else args.json.parent / "logs"
     scene_options = {k: v for k, v in (("state", args.state), ("cloth_kind", args.cloth)) if v is not None}
-    config = TrialConfig(mode=args.mode, observe_frames=args.frames, log_dir=str(log_dir),
+    config = TrialConfig(kind=args.kind, observe_frames=args.frames, log_dir=str(log_dir),
                          pictures_dir=None if args.pictures is None else str(args.pictures),
                          scene_options=scene_options)
     command = "python -m launch_scripts.trials " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
 
-    bar = tqdm(total=len(seeds), desc=f"{args.mode} trials", unit="trial", disable=args.quiet)
+    bar = tqdm(total=len(seeds), desc=f"{args.kind} trials", unit="trial", disable=args.quiet)
     wins = [0]
 
     def progress(record: dict) -> None:
@@ -268,7 +270,7 @@ def main(argv: list[str] | None = None) -> int:
         args.markdown.write_text(markdown(rep))
     s = rep["summary"]["success"]
     lo, hi = s["wilson_95"]
-    print(f"{args.mode}: {s['successes']}/{s['n']} trials succeeded ({100 * (s['rate'] or 0):.1f} %, "
+    print(f"{args.kind}: {s['successes']}/{s['n']} trials succeeded ({100 * (s['rate'] or 0):.1f} %, "
           f"95 % Wilson interval {100 * lo:.1f}-{100 * hi:.1f} %) in {settings['wall_s']:.0f} s")
     print(f"report: {args.json}")
     if args.markdown is not None:

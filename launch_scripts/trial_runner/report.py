@@ -97,7 +97,7 @@ def report(records: list[dict], command: str, settings: dict) -> dict:
 def markdown(rep: dict) -> str:
     """A markdown summary of a report: success rate with its 95 % Wilson interval, breakdowns, failures."""
     s = rep["summary"]
-    mode = rep["settings"].get("mode", "?")
+    kind = rep["settings"].get("kind", "?")
 
     def pct(rate: dict) -> str:
         if rate["n"] == 0:
@@ -109,7 +109,7 @@ def markdown(rep: dict) -> str:
     parity = "even (development)" if all(x % 2 == 0 for x in seeds) else (
         "odd (evaluation)" if all(x % 2 for x in seeds) else "mixed even and odd")
     lines = [
-        f"# Laundry-grasping trials: {mode} mode",
+        f"# Laundry-grasping trials: {kind} grasps",
         "",
         f"Command: `{rep['command']}` ({rep['cpu_count']} CPU cores); seeds {parity}.",
         "",

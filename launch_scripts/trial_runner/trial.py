@@ -15,7 +15,7 @@ the perception service to initialise on it; publish ``observe_frames`` frames of
 scene as a frame source (``sim.frame_source.SceneSource``) one at a time, each after the
 estimate of the previous one arrived (republished with back-off until it does, so a slow
 joiner or a loaded machine only delays the trial); request a plan of the configured
-mode; execute the plan the controller chooses (``sim.laundry.controller``: the planner's
+kind; execute the plan the controller chooses (``sim.laundry.controller``: the planner's
 best; when the robot holds the cloth up, the lowest point of the cloth it sees through a
 full turn) with ``sim.grasp_execution``; judge it (``sim.laundry.judge``). This module
 only orchestrates: the task's logic is ``sim.laundry``'s. Children are stopped on every
@@ -50,7 +50,7 @@ from launch_scripts.trial_runner.processes import ChildError, Children
 from sim.grasp_execution import ExecutionConfig, execute_grasp
 from sim.ground_truth import error_summary, vertex_errors
 from sim.laundry.controller import View, default_controller
-from sim.laundry.judge import MODES, judge
+from sim.laundry.judge import judge
 from sim.laundry.pictures import caption, draw_plan, draw_point, save_png, strip
 from sim.laundry.segment import mask_from_reference
 
@@ -80,7 +80,7 @@ PLANNER_ARGS = ("--pinch-inset-m", "0")
 class TrialConfig:
     """Settings of a trial (seconds, metres).
 
-    mode : grasp kind requested, "corner" (default), "boundary" or "highest"
+    kind : grasp kind requested (``GraspPlan.KINDS``): "corner" (default), "boundary" or "highest"
     observe_frames : frames shown to the perception service before planning: the first
         initialises the tracker, the others are tracked (1/30 s apart in the simulation)
     max_candidates : candidates asked of the planner (``run_trial``'s ``choose_plan`` picks one)
@@ -95,7 +95,7 @@ class TrialConfig:
     scene_options : passed to ``sim.laundry.laundry_spec`` (e.g. ``{"state": "flat"}``)
     """
 
-    mode: str = "corner"
+    kind: str = "corner"
     observe_frames: int = 5
     max_candidates: int = 10
     tracker_args: tuple = TRACKER_ARGS
@@ -110,8 +110,8 @@ class TrialConfig:
     scene_options: dict = field(default_factory=dict)
 
     def __post_init__(self):
-        if self.mode not in MODES:
-            raise ValueError(f"Expected mode in {MODES}, got {self.mode!r}")
+        if self.kind not in GraspPlan.KINDS:
+            raise ValueError(f"Expected kind in {GraspPlan.KINDS}, got {self.kind!r}")
         if int(self.observe_frames) < 1:
             raise ValueError(f"Expected observe_frames >= 1, got {self.observe_frames}")
         if not 1 <= int(self.max_candidates) <= GraspRequest.MAX_CANDIDATES:
@@ -155,7 +155,7 @@ class _Link:
             self.children.check()
         raise TimeoutError(f"no estimate of frame {frame.seq} within {self.config.frame_timeout_s:.0f} s")
 
-    def plan(self, mode: str, last_seq: int, republish) -> tuple[GraspPlanReply, float]:
+    def plan(self, kind: str, last_seq: int, republish) -> tuple[GraspPlanReply, float]:
         """A plan on the estimate of frame ``last_seq``; returns the reply and its round trip in ms.
 
         ``not_ready`` or a plan on an older estimate (the planner's subscriber has not
@@ -165,7 +165,7 @@ class _Link:
         from ipc.transport import RemoteError
 
         deadline = time.monotonic() + self.config.plan_timeout_s
-        request = GraspRequest(request_id=last_seq, max_candidates=self.config.max_candidates, kinds=(mode,))
+        request = GraspRequest(request_id=last_seq, max_candidates=self.config.max_candidates, kinds=(kind,))
         asked = time.monotonic()
         why = "no reply"
         while time.monotonic() < deadline:
@@ -215,9 +215,9 @@ def run_trial(seed: int, config: TrialConfig | None = None,
     seed : int >= 0; the scene, its noise and so the whole trial follow from it
     config : TrialConfig, defaults when None
     choose_plan : (reply, scene, view) -> the GraspPlan to execute, or None for none;
-        ``view`` is a ``View`` of the last frame; None for ``default_controller(config.mode)``
+        ``view`` is a ``View`` of the last frame; None for ``default_controller(config.kind)``
 
-    The record (JSON-ready): ``seed``, ``mode``, ``success``, ``corner_success``,
+    The record (JSON-ready): ``seed``, ``kind``, ``success``, ``corner_success``,
     ``failure`` ("" on success, else one line; "error: ..." when the trial could not
     run), ``scene`` (cloth kind, size, printed, initial state), ``corner_error_m`` and
     ``nearest_corner`` (name), ``boundary_error_m``, ``grasped_uv`` [u, v] metres,
@@ -237,9 +237,9 @@ def run_trial(seed: int, config: TrialConfig | None = None,
     from sim.laundry import LaundryScene, laundry_spec
 
     config = config if config is not None else TrialConfig()
-    choose_plan = choose_plan if choose_plan is not None else default_controller(config.mode)
+    choose_plan = choose_plan if choose_plan is not None else default_controller(config.kind)
     start = time.perf_counter()
-    record = {"seed": int(seed), "mode": config.mode, "success": False, "corner_success": False, "failure": ""}
+    record = {"seed": int(seed), "kind": config.kind, "success": False, "corner_success": False, "failure": ""}
     with contextlib.ExitStack() as stack:
         try:
             spec = laundry_spec(seed, **config.scene_options)
@@ -254,7 +254,7 @@ def run_trial(seed: int, config: TrialConfig | None = None,
                 "--no-auto-init", "-v", *config.tracker_args])
             planner = children.start("planner", "launch_scripts.planner_service", [
                 "--estimates", perception["estimates"], "--frames", frames_pub.endpoint, "--bind", FREE_PORT,
-                "--print-endpoint", "--kinds", config.mode, "--T-world-cam", *(f"{v:.9g}" for v in scene.T_world_cam.ravel()),
+                "--print-endpoint", "--kinds", config.kind, "--T-world-cam", *(f"{v:.9g}" for v in scene.T_world_cam.ravel()),
                 *_workspace_args(scene), *config.planner_args])
             link = _Link(stack, children, frames_pub, perception, planner, config)
             _observe_plan_execute(scene, link, config, choose_plan, record)
@@ -305,7 +305,7 @@ def _observe_plan_execute(scene, link: _Link, config: TrialConfig, choose_plan, 
     def show_last_frame_again() -> None:
         link.frames_pub.publish(frames[last])
 
-    reply, planning_ms = link.plan(config.mode, last, show_last_frame_again)
+    reply, planning_ms = link.plan(config.kind, last, show_last_frame_again)
     # Re-tracks of the last frame (while waiting for the planner) may have been published.
     fresh = link.estimates.recv_latest(timeout_s=0.0)
     if fresh is not None and fresh.seq == last:
@@ -326,7 +326,7 @@ def _observe_plan_execute(scene, link: _Link, config: TrialConfig, choose_plan, 
     record["n_candidates"] = len(reply.candidates)
     plan = choose_plan(reply, scene, View(frames[last], reference, mask_from_reference(frames[last], reference)))
     if plan is None:
-        record["failure"] = f"no {config.mode} grasp found on estimate {planned_on}"
+        record["failure"] = f"no {config.kind} grasp found on estimate {planned_on}"
         return
     record["plan"] = {"kind": plan.kind, "position_cam": [round(float(v), 4) for v in plan.position],
                       "approach_cam": [round(float(v), 4) for v in plan.approach], "score": round(plan.score, 4),
@@ -348,7 +348,7 @@ def _observe_plan_execute(scene, link: _Link, config: TrialConfig, choose_plan, 
             panels.append(caption(wide.render(scene.physics, scene.spec.texture_rgb).rgb, "lifted and settled (wide view)"))
 
     result = execute_grasp(scene, plan, config.execution, on_phase=on_phase)
-    verdict = judge(config.mode, result.grasped_uv, result.lifted_clear, scene.spec.corners_uv, scene.spec.outline_uv)
+    verdict = judge(config.kind, result.grasped_uv, result.lifted_clear, scene.spec.corners_uv, scene.spec.outline_uv)
     record.update(
         success=verdict.success, corner_success=verdict.corner_success, failure=verdict.reason,
         corner_error_m=None if math.isinf(verdict.corner_error_m) else round(verdict.corner_error_m, 4),

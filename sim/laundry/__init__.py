@@ -49,7 +49,7 @@ change the scene (independent random streams, as ``sim.scenes``).
 """
 
 from sim.laundry.controller import TURNS_RAD, View, best_candidate, default_controller, lowest_point_when_held
-from sim.laundry.judge import MODES, TOLERANCE_M, Judgement, judge
+from sim.laundry.judge import TOLERANCE_M, Judgement, judge
 from sim.laundry.scene import LaundryScene
 from sim.laundry.segment import cloth_points, mask_from_reference
 from sim.laundry.spec import (
@@ -67,7 +67,6 @@ __all__ = [
     "CLOTH_KINDS",
     "CLOTH_SPACING_M",
     "INITIAL_STATES",
-    "MODES",
     "STATE_PROBABILITIES",
     "TABLE_HALF_XY_M",
     "TOLERANCE_M",

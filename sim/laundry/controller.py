@@ -75,8 +75,8 @@ def lowest_point_when_held(reply: GraspPlanReply, scene, view: View) -> GraspPla
                               timestamp_s=view.frame.timestamp_s)
 
 
-def default_controller(mode: str) -> Callable[[GraspPlanReply, object, View], GraspPlan | None]:
-    """The controller's choice for a grasp mode: ``lowest_point_when_held`` for corner and
+def default_controller(kind: str) -> Callable[[GraspPlanReply, object, View], GraspPlan | None]:
+    """The controller's choice for a grasp kind: ``lowest_point_when_held`` for corner and
     boundary grasps, ``best_candidate`` for the highest-point baseline, which takes the
     planner's highest point whatever the cloth's state."""
-    return best_candidate if mode == "highest" else lowest_point_when_held
+    return best_candidate if kind == "highest" else lowest_point_when_held

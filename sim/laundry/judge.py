@@ -13,11 +13,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ipc.messages import GraspPlan
 from sim.laundry.truth import distance_to_segments, nearest_corner
 
 log = logging.getLogger(__name__)
 
-MODES = ("corner", "boundary", "highest")
 #: A grasp counts as a corner (boundary) grasp when its material point is at most this
 #: far from a true corner (the true outline), metres.
 TOLERANCE_M = 0.03
@@ -27,8 +27,8 @@ TOLERANCE_M = 0.03
 class Judgement:
     """The verdict on one executed grasp.
 
-    success : the grasp did what its mode asks (see ``judge``)
-    corner_success : within the tolerance of a true corner and lifted clear, whatever the mode
+    success : the grasp did what its kind asks (see ``judge``)
+    corner_success : within the tolerance of a true corner and lifted clear, whatever the kind
     corner_error_m : material distance from the grasped point to the nearest true corner (inf: nothing held)
     nearest_corner : index of that corner, -1 when nothing was held
     boundary_error_m : material distance from the grasped point to the true outline (inf: nothing held)
@@ -43,21 +43,22 @@ class Judgement:
     reason: str
 
 
-def judge(mode: str, grasped_uv, lifted_clear: bool, corners_uv: np.ndarray, outline_uv: np.ndarray,
+def judge(kind: str, grasped_uv, lifted_clear: bool, corners_uv: np.ndarray, outline_uv: np.ndarray,
           tolerance_m: float = TOLERANCE_M) -> Judgement:
     """Judge a grasp against the true corners and outline of the cloth.
 
-    mode : "corner" (success: the grasped point within ``tolerance_m`` of a true corner
-        and the cloth lifted clear), "boundary" (within ``tolerance_m`` of the true
-        outline and lifted clear) or "highest" (the baseline: success when the cloth is
-        lifted clear; its corner distance is judged too, as ``corner_success``)
+    kind : the grasp kind asked for (``GraspPlan.KINDS``): "corner" (success: the grasped
+        point within ``tolerance_m`` of a true corner and the cloth lifted clear),
+        "boundary" (within ``tolerance_m`` of the true outline and lifted clear) or
+        "highest" (the baseline: success when the cloth is lifted clear; its corner
+        distance is judged too, as ``corner_success``)
     grasped_uv : (2,) float metres, material point held; None when nothing was held
     lifted_clear : bool, no node of the cloth near the surface under it after the lift
     corners_uv : (C, 2) float metres, C >= 1; outline_uv : (E, 2, 2) float metres, the
         outline's segments (``LaundrySpec.outline_uv``)
     """
-    if mode not in MODES:
-        raise ValueError(f"Expected mode in {MODES}, got {mode!r}")
+    if kind not in GraspPlan.KINDS:
+        raise ValueError(f"Expected kind in {GraspPlan.KINDS}, got {kind!r}")
     if grasped_uv is None:
         return Judgement(False, False, math.inf, -1, math.inf, "missed: no cloth between the fingers")
     uv = np.asarray(grasped_uv, dtype=np.float64).reshape(2)
@@ -66,9 +67,9 @@ def judge(mode: str, grasped_uv, lifted_clear: bool, corners_uv: np.ndarray, out
     at_corner = corner_error <= tolerance_m
     at_boundary = boundary_error <= tolerance_m
     corner_success = at_corner and lifted_clear
-    if mode == "corner":
+    if kind == "corner":
         ok, miss = at_corner, f"grasped {100 * corner_error:.1f} cm from the nearest corner"
-    elif mode == "boundary":
+    elif kind == "boundary":
         ok, miss = at_boundary, f"grasped {100 * boundary_error:.1f} cm from the outline"
     else:
         ok, miss = True, ""

@@ -52,7 +52,7 @@ def test_the_readme_trial_through_the_command_line(tmp_path):
     assert f"report: {out / 'report.json'}" in done.stdout and f"pictures: {out}" in done.stdout
     report = json.loads((out / "report.json").read_text())
     (record,) = report["trials"]
-    assert record["seed"] == 0 and record["mode"] == "corner"
+    assert record["seed"] == 0 and record["kind"] == "corner"
     assert not record["failure"].startswith("error"), record["failure"]
     assert report["success_rate"] == float(record["success"])
     assert record["success"] == recomputed_success(record)

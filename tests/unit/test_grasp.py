@@ -299,13 +299,13 @@ def test_find_corners_bad_parameters():
 # --------------------------------------------------------------------------- plan_grasps
 
 
-@pytest.mark.parametrize("mode", ["corner", "boundary", "highest"])
-def test_plan_grasps_smoke_and_cardinality(mode):
+@pytest.mark.parametrize("kind", ["corner", "boundary", "highest"])
+def test_plan_grasps_smoke_and_cardinality(kind):
     canonical, faces, boundary, _ = rectangle()
-    result = plan_grasps(estimate(canonical, faces, boundary), GraspPlannerConfig(mode=mode))
+    result = plan_grasps(estimate(canonical, faces, boundary), GraspPlannerConfig(kind=kind))
     assert isinstance(result, GraspResult) and result and result.reason == ""
-    assert len(result.plans) == len(result.terms) == {"corner": 4, "highest": 1}.get(mode, len(result.plans))
-    assert all(isinstance(p, GraspPlan) and p.kind == mode for p in result.plans)
+    assert len(result.plans) == len(result.terms) == {"corner": 4, "highest": 1}.get(kind, len(result.plans))
+    assert all(isinstance(p, GraspPlan) and p.kind == kind for p in result.plans)
     assert all(isinstance(t, GraspTerms) and t.visibility is None for t in result.terms)
     scores = [p.score for p in result.plans]
     assert scores == sorted(scores, reverse=True)
@@ -314,7 +314,7 @@ def test_plan_grasps_smoke_and_cardinality(mode):
 
 def test_boundary_candidates_are_evenly_spaced_along_the_outline():
     canonical, faces, boundary, _ = rectangle()
-    config = GraspPlannerConfig(mode="boundary", boundary_spacing_m=0.06)
+    config = GraspPlannerConfig(kind="boundary", boundary_spacing_m=0.06)
     result = plan_grasps(estimate(canonical, faces, boundary), config)
     ids = np.array([p.vertex_id for p in result.plans])
     assert set(ids) <= set(boundary)
@@ -335,7 +335,7 @@ def test_corners_follow_a_rigid_motion_exactly():
     centre = before.vertices.mean(axis=0)
     t = np.array([0.05, -0.02, 0.2])
     after = estimate(canonical, faces, boundary, vertices=(before.vertices - centre) @ R.T + centre + t)
-    planner = GraspPlanner(GraspPlannerConfig(mode="corner"))
+    planner = GraspPlanner(GraspPlannerConfig(kind="corner"))
     first, second = planner.plan(before), planner.plan(after)
     assert sorted(p.vertex_id for p in second.plans) == sorted(ids)
     moved = {p.vertex_id: p for p in second.plans}
@@ -356,7 +356,7 @@ def test_highest_point_of_a_tilted_plane():
     vertices = canonical[:, :1] * e1 + canonical[:, 1:2] * e2 + [0.0, 0.0, 1.0]
     tilted = estimate(canonical, faces, boundary, vertices=vertices)
     assert e1 @ [0, -1, 0] > 0 and e2 @ [0, -1, 0] > 0  # image-up grows with x and y
-    camera_up = GraspPlannerConfig(mode="highest")
+    camera_up = GraspPlannerConfig(kind="highest")
     np.testing.assert_allclose(camera_up.up_cam, [0.0, -1.0, 0.0])
     result = plan_grasps(tilted, camera_up)
     assert [p.vertex_id for p in result.plans] == [ids[2]]  # corner (W, H)
@@ -367,7 +367,7 @@ def test_highest_point_of_a_tilted_plane():
     T_world_cam = np.eye(4)
     T_world_cam[:3, :3] = R_world_cam
     T_world_cam[:3, 3] = [0.3, -0.1, 0.8]
-    config = GraspPlannerConfig(mode="highest", T_world_cam=T_world_cam)  # up_world defaults to +z
+    config = GraspPlannerConfig(kind="highest", T_world_cam=T_world_cam)  # up_world defaults to +z
     np.testing.assert_allclose(config.up_world, [0.0, 0.0, 1.0])
     np.testing.assert_allclose(config.up_cam, up_cam, atol=1e-12)
     assert [p.vertex_id for p in plan_grasps(tilted, config).plans] == [ids[1]]
@@ -377,7 +377,7 @@ def test_highest_point_is_the_highest_reachable_one():
     canonical, faces, boundary, ids = rectangle()
     flat = estimate(canonical, faces, boundary)
     top_y = flat.vertices[:, 1].min()  # image up is -y
-    config = GraspPlannerConfig(mode="highest", workspace_min_world=[-1, top_y + 0.05, 0], workspace_max_world=[1, 1, 2])
+    config = GraspPlannerConfig(kind="highest", workspace_min_world=[-1, top_y + 0.05, 0], workspace_max_world=[1, 1, 2])
     result = plan_grasps(flat, config)
     assert flat.vertices[result.plans[0].vertex_id, 1] == pytest.approx(top_y + 3 * ROW)  # first row at or past 5 cm
     assert result.rejected["outside workspace"] == int(np.sum(flat.vertices[:, 1] < top_y + 0.05))
@@ -476,7 +476,7 @@ def test_gripper_frame_convention(mode, edge_approach):
     centre = flat.vertices.mean(axis=0)
     cloth = estimate(canonical, faces, boundary, vertices=(flat.vertices - centre) @ tilt.T + centre)
     normal_to_camera = tilt @ [0.0, 0.0, -1.0]  # the flat cloth's normal toward the camera is -z
-    config = GraspPlannerConfig(mode=mode, edge_approach=edge_approach, pinch_inset_m=0.0)
+    config = GraspPlannerConfig(kind=mode, edge_approach=edge_approach, pinch_inset_m=0.0)
     for plan in plan_grasps(cloth, config).plans:
         R = quat_to_matrix(plan.quat_xyzw)
         np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
@@ -527,9 +527,9 @@ def test_degenerate_or_unreachable_geometry_gives_a_reason():
     collapsed = estimate(canonical, faces, boundary, vertices=np.tile([0.0, 0.0, 1.0], (len(canonical), 1)))
     result = plan_grasps(collapsed)
     assert result.plans == () and result.reason == "all 4 corner candidates rejected: 4 degenerate geometry"
-    result = plan_grasps(collapsed, GraspPlannerConfig(mode="highest"))
+    result = plan_grasps(collapsed, GraspPlannerConfig(kind="highest"))
     assert result.reason == "all 1 highest candidates rejected: 1 degenerate geometry"
-    nowhere = GraspPlannerConfig(mode="highest", workspace_min_world=[5.0, 5.0, 5.0], workspace_max_world=[6.0, 6.0, 6.0])
+    nowhere = GraspPlannerConfig(kind="highest", workspace_min_world=[5.0, 5.0, 5.0], workspace_max_world=[6.0, 6.0, 6.0])
     result = plan_grasps(estimate(canonical, faces, boundary), nowhere)
     assert result.reason == "no vertex inside the workspace"
     assert result.rejected == {"outside workspace": len(canonical)}
@@ -539,7 +539,7 @@ def test_no_boundary_or_no_corners_gives_a_reason():
     canonical, faces, _, _ = rectangle(6, 4)
     result = plan_grasps(estimate(canonical, faces, np.zeros(0, np.int32)))
     assert result.plans == () and result.reason == "estimate has no boundary vertices"
-    assert plan_grasps(estimate(canonical, faces, np.zeros(0, np.int32)), GraspPlannerConfig(mode="highest")).plans
+    assert plan_grasps(estimate(canonical, faces, np.zeros(0, np.int32)), GraspPlannerConfig(kind="highest")).plans
     t = np.linspace(0, 2 * np.pi, 48, endpoint=False)
     disc = hex_mesh(0.15 * np.column_stack([np.cos(t), np.sin(t)]))
     result = plan_grasps(estimate(*disc))
@@ -565,7 +565,7 @@ def test_bad_inputs_raise_one_line_errors():
 @pytest.mark.parametrize(
     "kwargs, match",
     [
-        ({"mode": "center"}, "Expected mode in"),
+        ({"kind": "center"}, "Expected kind in"),
         ({"edge_approach": "scoop"}, "Expected edge_approach in"),
         ({"T_world_cam": np.eye(3)}, r"T_world_cam with shape \(4, 4\), got \(3, 3\)"),
         ({"T_world_cam": np.diag([1.0, 1.0, -1.0, 1.0])}, "determinant"),
@@ -624,7 +624,7 @@ def test_equal_scores_put_the_sharpest_corners_first():
     # upside down, the neck corners have the lowest ids.
     upside_down = (TSHIRT * [1.0, -1.0])[::-1]  # still counter-clockwise
     canonical, faces, boundary = hex_mesh(upside_down)
-    result = plan_grasps(estimate(canonical, faces, boundary), GraspPlannerConfig(mode="corner"))
+    result = plan_grasps(estimate(canonical, faces, boundary), GraspPlannerConfig(kind="corner"))
     assert len({p.score for p in result.plans}) == 1 and len(result.plans) == len(TSHIRT_CORNERS)
     which, _ = nearest_polygon_vertex(canonical[[p.vertex_id for p in result.plans], :2], upside_down)
     which = len(TSHIRT) - 1 - which  # index in TSHIRT
@@ -703,7 +703,7 @@ def test_corners_at_a_folds_end_rank_after_true_corners():
     on_fold = world[:, 0] > 0.05 + 1e-9
     folded_cloth = MeshEstimate(vertices=cloth.vertices + np.outer(on_fold, T[:3, :3].T @ [0, 0, layer]),
                                 faces=cloth.faces, boundary=cloth.boundary, canonical=cloth.canonical)
-    config = GraspPlannerConfig(mode="corner", T_world_cam=T, layer_thickness_m=0.008)
+    config = GraspPlannerConfig(kind="corner", T_world_cam=T, layer_thickness_m=0.008)
     result = plan_grasps(folded_cloth, config, frame)
     assert len(result.plans) == 4
     x_of = {p.vertex_id: world[p.vertex_id, 0] for p in result.plans}
@@ -716,7 +716,7 @@ def test_corners_at_a_folds_end_rank_after_true_corners():
         else:
             assert t.single_layer < 0.6 and t.step_m == pytest.approx(2 * layer, abs=0.001)
     # Turned off, the four corners tie again.
-    flat_scores = plan_grasps(folded_cloth, GraspPlannerConfig(mode="corner", T_world_cam=T, weight_single_layer=0.0),
+    flat_scores = plan_grasps(folded_cloth, GraspPlannerConfig(kind="corner", T_world_cam=T, weight_single_layer=0.0),
                               frame)
     assert len({round(p.score, 9) for p in flat_scores.plans}) == 1
 
@@ -727,6 +727,6 @@ def test_a_corner_far_above_the_surface_beyond_is_not_judged():
     T = table_view()
     cloth, _ = cloth_on_table(T, 0.10)
     frame = frame_of_layers(T, [(-0.2, 0.2, -0.15, 0.15, 0.10)])
-    result = plan_grasps(cloth, GraspPlannerConfig(mode="corner", T_world_cam=T), frame)
+    result = plan_grasps(cloth, GraspPlannerConfig(kind="corner", T_world_cam=T), frame)
     assert len(result.terms) == 4
     assert all(t.single_layer == 1.0 and t.step_m == pytest.approx(0.10, abs=0.005) for t in result.terms)

@@ -45,7 +45,7 @@ def test_a_corner_grasp_that_does_not_lift_clear_fails():
     assert both.reason == "grasped 32.0 cm from the nearest corner; not lifted clear"
 
 
-def test_boundary_mode_measures_the_distance_to_the_outline():
+def test_boundary_kind_measures_the_distance_to_the_outline():
     on_edge = judge("boundary", (0.25, 0.01), True, CORNERS, OUTLINE)
     assert on_edge.success and on_edge.boundary_error_m == pytest.approx(0.01)
     assert not on_edge.corner_success  # 25 cm from a corner
@@ -54,22 +54,22 @@ def test_boundary_mode_measures_the_distance_to_the_outline():
     assert inside.reason == "grasped 20.0 cm from the outline"
 
 
-def test_highest_mode_succeeds_when_lifted_and_reports_the_corner_distance():
+def test_highest_kind_succeeds_when_lifted_and_reports_the_corner_distance():
     verdict = judge("highest", (0.25, 0.2), True, CORNERS, OUTLINE)
     assert verdict.success and not verdict.corner_success
     assert verdict.corner_error_m == pytest.approx(np.hypot(0.25, 0.2))
     assert not judge("highest", (0.25, 0.2), False, CORNERS, OUTLINE).success
 
 
-def test_nothing_held_is_a_miss_in_every_mode():
-    for mode in ("corner", "boundary", "highest"):
-        verdict = judge(mode, None, False, CORNERS, OUTLINE)
+def test_nothing_held_is_a_miss_for_every_kind():
+    for kind in ("corner", "boundary", "highest"):
+        verdict = judge(kind, None, False, CORNERS, OUTLINE)
         assert not verdict.success and verdict.nearest_corner == -1 and np.isinf(verdict.corner_error_m)
         assert verdict.reason == "missed: no cloth between the fingers"
 
 
-def test_judge_rejects_an_unknown_mode():
-    with pytest.raises(ValueError, match="Expected mode in .*, got 'middle'"):
+def test_judge_rejects_an_unknown_kind():
+    with pytest.raises(ValueError, match="Expected kind in .*, got 'middle'"):
         judge("middle", (0.0, 0.0), True, CORNERS, OUTLINE)
 
 
@@ -143,14 +143,14 @@ def test_summary_counts_rates_breakdowns_and_failures():
 
 
 def test_report_is_sorted_json_with_the_contract_fields_and_a_markdown_summary():
-    rep = report(RECORDS, "python -m launch_scripts.trials --seeds 0 2 4 --json r.json", {"mode": "corner"})
+    rep = report(RECORDS, "python -m launch_scripts.trials --seeds 0 2 4 --json r.json", {"kind": "corner"})
     assert [t["seed"] for t in rep["trials"]] == [0, 2, 4]
     assert rep["success_rate"] == pytest.approx(1 / 3)
     assert all("seed" in t and "success" in t for t in rep["trials"])
     json.dumps(rep)
     text = markdown(rep)
     assert "**success: 1/3 = 33.3 % (95 % Wilson interval 6.1-79.2 %)**" in text
-    assert "seeds even (development)" in text
+    assert "seeds even (development)" in text and text.startswith("# Laundry-grasping trials: corner grasps")
 
 
 def test_failure_kind_drops_numbers_and_keeps_error_types():
@@ -167,7 +167,7 @@ def test_failure_kind_drops_numbers_and_keeps_error_types():
     (["--seeds", "-2", "--json", "r.json"], "argument --seeds: expected seeds >= 0, got '-2'"),
     (["--seeds", "0:10:0", "--json", "r.json"], "argument --seeds: expected START:STOP[:STEP] with a non-zero step"),
     (["--seeds", "0", "--json", "r.json", "--workers", "0"], "argument --workers: expected a positive integer, got 0"),
-    (["--seeds", "0", "--json", "r.json", "--mode", "middle"], "argument --mode: invalid choice: 'middle'"),
+    (["--seeds", "0", "--json", "r.json", "--mode", "middle"], "argument --kind/--mode: invalid choice: 'middle'"),
     (["--json", "r.json"], "the following arguments are required: --seeds"),
 ])
 def test_trials_bad_arguments_exit_2_with_one_line(args, message, capsys):
@@ -208,7 +208,7 @@ def fake_trial(seed, config):
 
     if seed == 1:
         os.kill(os.getpid(), signal.SIGKILL)
-    return {"seed": seed, "mode": config.mode, "success": True, "failure": "", "payload": "x" * (200_000 if seed == 2 else 1)}
+    return {"seed": seed, "kind": config.kind, "success": True, "failure": "", "payload": "x" * (200_000 if seed == 2 else 1)}
 
 
 def test_a_trial_process_that_dies_is_a_failed_record_and_the_others_run(tmp_path):
