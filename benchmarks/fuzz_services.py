@@ -51,7 +51,7 @@ sys.path.insert(0, str(REPO))
 from ipc import messages as m  # noqa: E402
 from ipc.codec import encode  # noqa: E402
 from ipc.examples import example_messages  # noqa: E402
-from perception.service import tracker_parameters  # noqa: E402
+from perception.parameters import tracker_parameters  # noqa: E402
 from perception.tracker import TrackerConfig  # noqa: E402
 from tests.fuzz_frames import FrameFuzzer, sheet_frames  # noqa: E402
 from tests.unit.test_ipc_fuzz import CORPUS, hostile_values, paths, replaced  # noqa: E402

@@ -5,15 +5,16 @@ Data flow (docs/protocol.md)::
     perception --MeshEstimate (PUB)--> planner service <--GraspRequest (REQ)-- controller
     frame source --RGBDFrame (PUB)---^  (optional)    --GraspPlanReply | ErrorReply-->
 
-Two layers, as the rest of the toolkit:
+Two layers, as the perception service (``PerceptionCore`` and ``PerceptionService``): a
+socket-free core, and the sockets around it:
 
-- ``PlannerService`` holds the newest estimate (and the recent frames, for the
+- ``PlannerCore`` holds the newest estimate (and the recent frames, for the
   visibility term) and answers a ``GraspRequest`` with a ``GraspPlanReply`` (best
   first) or an ``ErrorReply``: ``not_ready`` before any estimate has arrived,
   ``invalid`` when the request asks only for kinds this service does not serve or
   carries an estimate the planner cannot use. It knows nothing of sockets.
 - ``run_planner_service`` binds and connects the sockets (``ipc.transport``) and
-  drives a ``PlannerService`` until a stop event is set. Malformed requests are
+  drives a ``PlannerCore`` until a stop event is set. Malformed requests are
   answered by ``ReplyServer`` itself and never stop the loop.
 
 Frames: the plans are in the estimate's camera frame; ``GraspPlannerConfig`` holds
@@ -46,7 +47,7 @@ log = logging.getLogger(__name__)
 FRAME_HISTORY = 8
 
 
-class PlannerService:
+class PlannerCore:
     """Answers grasp requests from the newest estimate; no sockets (see the module docstring).
 
     config : GraspPlannerConfig; its ``kind`` is ignored, the kinds come from each request
@@ -135,7 +136,7 @@ class PlannerService:
 
 
 def run_planner_service(
-    service: PlannerService,
+    core: PlannerCore,
     *,
     estimates_endpoint: str,
     planner_endpoint: str,
@@ -145,7 +146,7 @@ def run_planner_service(
     on_bound=None,
     curve=None,
 ) -> None:
-    """Serve ``service`` on ZeroMQ until ``stop`` is set.
+    """Serve ``core`` on ZeroMQ until ``stop`` is set.
 
     estimates_endpoint : the perception service's MeshEstimate publisher to connect to
     planner_endpoint : where to bind the REP socket, e.g. ``ipc.endpoints.PLANNER`` or
@@ -173,18 +174,18 @@ def run_planner_service(
                 if frames is not None:
                     frame = frames.recv_latest(timeout_s=0)
                     if frame is not None:
-                        service.on_frame(frame)
+                        core.on_frame(frame)
                 estimate = estimates.recv_latest(timeout_s=0)
                 if estimate is not None:
-                    service.on_estimate(estimate)
+                    core.on_estimate(estimate)
 
             def handle(request: GraspRequest):
                 drain()
-                return service.handle(request)
+                return core.handle(request)
 
             with ReplyServer(planner_endpoint, {GraspRequest: handle}, curve=server) as replies:
                 log.info("planner service: estimates from %s, %sserving %s on %s%s", estimates_endpoint,
-                         f"frames from {frames_endpoint}, " if frames_endpoint else "", "/".join(service.kinds),
+                         f"frames from {frames_endpoint}, " if frames_endpoint else "", "/".join(core.kinds),
                          replies.endpoint, ", CURVE" if curve is not None else "")
                 if on_bound is not None:
                     on_bound(replies.endpoint)
@@ -194,4 +195,4 @@ def run_planner_service(
         finally:
             if frames is not None:
                 frames.close()
-    log.info("planner service stopped after %d request(s)", service.requests)
+    log.info("planner service stopped after %d request(s)", core.requests)

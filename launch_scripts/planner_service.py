@@ -32,7 +32,7 @@ import threading
 import numpy as np
 
 from grasping._planner import EDGE_APPROACHES, GraspPlannerConfig
-from grasping.service import PlannerService, run_planner_service
+from grasping.service import PlannerCore, run_planner_service
 from ipc import endpoints
 from ipc.messages import GraspPlan
 from launch_scripts.cli import (
@@ -124,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     if len(set(args.kinds)) != len(args.kinds):
         parser.error(f"--kinds: repeated kind in {' '.join(args.kinds)}")
     try:
-        service = PlannerService(config_from_args(args), kinds=args.kinds, max_age_s=args.max_estimate_age_s)
+        core = PlannerCore(config_from_args(args), kinds=args.kinds, max_age_s=args.max_estimate_age_s)
         curve = curve_keys_from_args(args, [args.bind])
     except ValueError as e:
         parser.error(str(e))
@@ -138,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
             print(json.dumps({"planner": endpoint}), flush=True)
 
     try:
-        run_planner_service(service, estimates_endpoint=args.estimates, planner_endpoint=args.bind,
+        run_planner_service(core, estimates_endpoint=args.estimates, planner_endpoint=args.bind,
                             frames_endpoint=args.frames, stop=stop, on_bound=announce, curve=curve)
     except ValueError as e:  # an endpoint that cannot be bound or connected
         print(f"{parser.prog}: error: {e}", file=sys.stderr)

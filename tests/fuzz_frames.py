@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from ipc.messages import CameraInfo, RGBDFrame
-from perception.service import PARAMETER_RANGES
+from perception.parameters import PARAMETER_RANGES
 from tests.render import frame_of, grid_surface, plane_points, texture
 
 CAMERA = CameraInfo.from_fov(160, 120, np.deg2rad(45))

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import zmq
 
-from grasping.service import PlannerService
+from grasping.service import PlannerCore
 from ipc.codec import decode
 from ipc.messages import ErrorReply, GraspPlanReply, GraspRequest, MeshEstimate
 from ipc.transport import Publisher, RemoteError, RequestClient
@@ -150,13 +150,13 @@ def test_bad_requests_are_answered_and_the_service_keeps_serving(service):
 
 
 def test_service_core_without_sockets():
-    service = PlannerService(kinds=("corner",))
+    service = PlannerCore(kinds=("corner",))
     assert service.handle(GraspRequest(kinds=("corner",))).code == "not_ready"
     service.on_estimate(rectangle_estimate(seq=2))
     reply = service.handle(GraspRequest(kinds=("corner", "highest"), max_candidates=10))
     assert len(reply.candidates) == 4 and reply.estimate_seq == 2
     with pytest.raises(ValueError, match=r"Expected kinds: distinct values among .*, got \('corner', 'corner'\)"):
-        PlannerService(kinds=("corner", "corner"))
+        PlannerCore(kinds=("corner", "corner"))
 
 
 def test_kinds_as_documented():
@@ -164,17 +164,17 @@ def test_kinds_as_documented():
     does not serve is invalid, not not_ready (retrying cannot help)."""
     assert GraspRequest().kinds == ("corner", "boundary", "highest")
     estimate = rectangle_estimate(seq=3)
-    every = PlannerService().handle(GraspRequest(estimate=estimate, max_candidates=100))
+    every = PlannerCore().handle(GraspRequest(estimate=estimate, max_candidates=100))
     scores = [c.score for c in every.candidates]
     assert scores == sorted(scores, reverse=True) and {"corner", "boundary"} <= {c.kind for c in every.candidates}
-    reply = PlannerService(kinds=("corner",)).handle(GraspRequest(kinds=("boundary",), estimate=estimate))
+    reply = PlannerCore(kinds=("corner",)).handle(GraspRequest(kinds=("boundary",), estimate=estimate))
     assert isinstance(reply, ErrorReply) and reply.code == "invalid" and "serves corner grasps, not boundary" in reply.message
     doc = (Path(__file__).resolve().parents[2] / "docs" / "protocol.md").read_text()
     assert "`invalid` when none of the requested `kinds` is served by this planner" in doc
 
 
 def test_a_stale_estimate_is_not_ready_but_a_request_may_bring_its_own():
-    service = PlannerService(kinds=("corner",), max_age_s=0.05)
+    service = PlannerCore(kinds=("corner",), max_age_s=0.05)
     service.on_estimate(rectangle_estimate(seq=2))
     assert len(service.handle(GraspRequest(kinds=("corner",))).candidates) == 4
     time.sleep(0.1)
@@ -183,7 +183,7 @@ def test_a_stale_estimate_is_not_ready_but_a_request_may_bring_its_own():
     assert "over the 0.05 s limit" in stale.message
     assert service.handle(GraspRequest(kinds=("corner",), estimate=rectangle_estimate(seq=3))).estimate_seq == 3
     with pytest.raises(ValueError, match="Expected max_age_s > 0 or None, got 0"):
-        PlannerService(max_age_s=0)
+        PlannerCore(max_age_s=0)
 
 
 @pytest.mark.parametrize("args, message", [

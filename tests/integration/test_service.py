@@ -33,18 +33,12 @@ from ipc.messages import (
 )
 from ipc.transport import Publisher, RemoteError, RequestClient, Subscriber
 from perception import TrackerConfig
-from perception.service import (
-    MAX_MESH_VERTICES,
-    MAX_VERTEX_STEPS,
-    PARAMETER_RANGES,
-    PerceptionCore,
-    PerceptionService,
-    RerunViewer,
-    ServiceConfig,
-    apply_parameters,
-)
+from perception.parameters import MAX_MESH_VERTICES, MAX_VERTEX_STEPS, PARAMETER_RANGES, apply_parameters
+from perception.service import PerceptionService, ServiceConfig
+from perception.service_core import PerceptionCore
 from perception.sources import FrameSource, Pacing, publish_frames
 from perception.tracker import config_with
+from perception.viewer import RerunViewer
 from tests.render import frame_of, grid_surface, plane_points, texture
 
 pytestmark = pytest.mark.timeout(120)

@@ -20,7 +20,7 @@ from ipc import codec
 from ipc.messages import RGBDFrame
 from perception import TrackerConfig
 from perception.frame_checks import check_camera, check_frame
-from perception.service import PerceptionCore
+from perception.service_core import PerceptionCore
 from tests.fuzz_frames import CAMERA, FrameFuzzer, sheet_frames
 
 pytestmark = pytest.mark.timeout(300)
