@@ -23,6 +23,7 @@ other machines can reach needs --curve-keys (or --insecure).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import logging
 import math
@@ -116,6 +117,48 @@ def config_from_args(args) -> GraspPlannerConfig:
     if args.workspace_max is not None:
         kw["workspace_max_world"] = np.asarray(args.workspace_max)
     return GraspPlannerConfig(**kw)
+
+
+#: The planner settings these options set (``config_from_args``); every other field of
+#: GraspPlannerConfig keeps its default in the service.
+OPTION_FIELDS = ("edge_approach", "pinch_inset_m", "T_world_cam", "workspace_min_world", "workspace_max_world",
+                 "up_world", "min_score", "min_confidence", "opening_width_m", "outline_window_spacings",
+                 "corner_max_angle_rad", "layer_thickness_m", "weight_single_layer")
+
+
+def arguments_from_config(config: GraspPlannerConfig) -> list[str]:
+    """The planner options (``build_parser``) that give a service ``config``: the inverse of
+    ``config_from_args``, every number written exactly (``repr``). ``config.kind`` is not
+    among them: the kinds served are ``--kinds``.
+
+    raises ValueError naming a field that differs from its default but has no option
+    """
+    defaults = GraspPlannerConfig()
+    for f in dataclasses.fields(GraspPlannerConfig):
+        if f.name in OPTION_FIELDS or f.name == "kind":
+            continue
+        if not np.array_equal(getattr(config, f.name), getattr(defaults, f.name)):
+            raise ValueError(f"GraspPlannerConfig.{f.name}: the planner service has no option for it (it keeps "
+                             f"{getattr(defaults, f.name)!r})")
+
+    def numbers(values) -> list[str]:
+        return [repr(float(v)) for v in np.ravel(values)]
+
+    argv = ["--edge-approach", config.edge_approach, "--pinch-inset-m", *numbers(config.pinch_inset_m),
+            "--T-world-cam", *numbers(config.T_world_cam), "--up", *numbers(config.up_world)]
+    for option, corner in (("--workspace-min", config.workspace_min_world), ("--workspace-max", config.workspace_max_world)):
+        if np.all(np.isfinite(corner)):
+            argv += [option, *numbers(corner)]
+        elif np.any(np.isfinite(corner)):
+            raise ValueError(f"{option}: the planner service takes a bounded or an unbounded corner, got {corner.tolist()}")
+    for option, value in (("--min-score", config.min_score), ("--min-confidence", config.min_confidence),
+                          ("--opening-width-m", config.opening_width_m),
+                          ("--outline-window-spacings", config.outline_window_spacings),
+                          ("--corner-max-angle-deg", math.degrees(config.corner_max_angle_rad)),
+                          ("--layer-thickness-m", config.layer_thickness_m),
+                          ("--weight-single-layer", config.weight_single_layer)):
+        argv += [option, *numbers(value)]
+    return argv
 
 
 def main(argv: list[str] | None = None) -> int:

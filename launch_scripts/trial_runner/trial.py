@@ -27,6 +27,7 @@ The record (a JSON-ready dict) holds at least ``seed`` and ``success``; see ``ru
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import math
 import tempfile
@@ -38,15 +39,20 @@ from pathlib import Path
 
 import numpy as np
 
+from grasping import GraspPlannerConfig
 from ipc.messages import (
     GraspPlan,
     GraspPlanReply,
     GraspRequest,
     InitialiseRequest,
     MeshEstimate,
+    SetParametersRequest,
     StatusReply,
+    StatusRequest,
 )
 from launch_scripts.trial_runner.processes import ChildError, Children
+from perception.parameters import tracker_parameters
+from perception.tracker import TrackerConfig
 from sim.grasp_execution import ExecutionConfig, execute_grasp
 from sim.ground_truth import error_summary, vertex_errors
 from sim.laundry.controller import View, default_controller
@@ -58,22 +64,25 @@ log = logging.getLogger(__name__)
 
 FREE_PORT = "tcp://127.0.0.1:*"
 
-#: Tracker options of the perception service in trials, and why (measured on even seeds,
+#: The tracker of the perception service in trials, and why (measured on even seeds,
 #: frames recorded once and tracked with each variant):
-#: --spacing-m 0.015: the corner vertex of the canonical hex mesh lies up to about a
+#: spacing_m 0.015: the corner vertex of the canonical hex mesh lies up to about a
 #:   spacing inside the true corner; at the default 3 cm that alone is ~2.3 cm (median) of
 #:   the 3 cm tolerance, and the chord window (4 spacings) cannot resolve a small shirt's
 #:   10 cm sleeve end; at 1.5 cm the planned corner is ~1 cm (median) from the true one.
-#: --no-boundary: depth segmentation cannot tell a cloth lying on a table from the table,
+#: use_boundary off: depth segmentation cannot tell a cloth lying on a table from the table,
 #:   so the tracked mask grows into the table and the boundary term drags the mesh
 #:   outward (20-50 mm mean vertex error after four frames of a still cloth).
-#: --features klt: on plain cloth SIFT finds keypoints in the sensor noise, whose wrong
+#: features "klt": on plain cloth SIFT finds keypoints in the sensor noise, whose wrong
 #:   matches drag the mesh 8-20 mm in four frames; KLT's tracked points drift 1-3 mm, and
 #:   on printed cloth both hold it within a millimetre.
-TRACKER_ARGS = ("--spacing-m", "0.015", "--no-boundary", "--features", "klt")
-#: Planner options in trials: no inset, since the canonical corner vertex is already
-#: inside the cloth by up to a grid spacing (the inset would add a centimetre of error).
-PLANNER_ARGS = ("--pinch-inset-m", "0")
+TRIAL_TRACKER = TrackerConfig(spacing_m=0.015, use_boundary=False, features="klt")
+#: The planner in trials: no inset, since the canonical corner vertex is already inside
+#: the cloth by up to a grid spacing (the inset would add a centimetre of error). Each
+#: trial adds its scene's camera pose and the robot's workspace (``planner_config``).
+TRIAL_PLANNER = GraspPlannerConfig(pinch_inset_m=0.0)
+#: The services a trial starts, as modules run with ``python -m``.
+SERVICES = {"perception": "launch_scripts.perception_service", "planner": "launch_scripts.planner_service"}
 
 
 @dataclass(frozen=True)
@@ -84,7 +93,11 @@ class TrialConfig:
     observe_frames : frames shown to the perception service before planning: the first
         initialises the tracker, the others are tracked (1/30 s apart in the simulation)
     max_candidates : candidates asked of the planner (``run_trial``'s ``choose_plan`` picks one)
-    tracker_args, planner_args : extra command-line options of the two services
+    tracker : TrackerConfig of the perception service, sent to it over its control socket
+        (every field a SetParametersRequest carries; the others must keep the paper
+        preset's values, which the service starts with)
+    planner : GraspPlannerConfig of the planner service (its kind, camera pose and
+        workspace are the trial's: ``planner_config``), given on its command line
     noise : sensor noise on the frames
     pictures_dir : write ``trial_seed<S>.png`` there, or None for no pictures
     log_dir : where the services' logs go (``seed<S>/``), or None for a temporary folder
@@ -98,8 +111,8 @@ class TrialConfig:
     kind: str = "corner"
     observe_frames: int = 5
     max_candidates: int = 10
-    tracker_args: tuple = TRACKER_ARGS
-    planner_args: tuple = PLANNER_ARGS
+    tracker: TrackerConfig = field(default_factory=lambda: TRIAL_TRACKER)
+    planner: GraspPlannerConfig = field(default_factory=lambda: TRIAL_PLANNER)
     noise: bool = True
     pictures_dir: str | None = None
     log_dir: str | None = None
@@ -118,12 +131,31 @@ class TrialConfig:
             raise ValueError(f"Expected max_candidates in [1, {GraspRequest.MAX_CANDIDATES}], got {self.max_candidates}")
 
 
-def _workspace_args(scene) -> list[str]:
-    """The reachable box of the trial's robot, world frame: over the table, up to 1.5 m above it."""
+def planner_config(config: TrialConfig, scene) -> GraspPlannerConfig:
+    """``config.planner`` for the trial's scene: its grasp kind, the camera pose (world z up)
+    and the reachable box of the trial's robot, over the table and up to 1.5 m above it."""
     hx, hy = scene.spec.table_half_xy
     top = scene.spec.table_top_z
-    lo, hi = (-hx - 0.2, -hy - 0.2, top - 0.02), (hx + 0.2, hy + 0.2, top + 1.5)
-    return ["--workspace-min", *(f"{v:.4f}" for v in lo), "--workspace-max", *(f"{v:.4f}" for v in hi)]
+    return dataclasses.replace(config.planner, kind=config.kind, T_world_cam=scene.T_world_cam,
+                               up_world=np.array([0.0, 0.0, 1.0]),
+                               workspace_min_world=np.array([-hx - 0.2, -hy - 0.2, top - 0.02]),
+                               workspace_max_world=np.array([hx + 0.2, hy + 0.2, top + 1.5]))
+
+
+def tracker_parameters_to_send(config: TrackerConfig, current: dict) -> dict:
+    """The ``SetParametersRequest.parameters`` that turn a perception service started with the
+    paper preset, whose ``StatusReply.parameters`` are ``current``, into ``config``.
+
+    raises ValueError naming a field of ``config`` that a request cannot carry (a tuple or a
+    nested setting) and that differs from the paper preset's
+    """
+    sent = tracker_parameters(config)
+    started = TrackerConfig()
+    for f in dataclasses.fields(TrackerConfig):
+        if f.name not in sent and getattr(config, f.name) != getattr(started, f.name):
+            raise ValueError(f"TrialConfig.tracker.{f.name}: a SetParametersRequest cannot carry it, and the "
+                             "perception service keeps the paper preset's value")
+    return {name: value for name, value in sent.items() if current.get(name) != value}
 
 
 class _Link:
@@ -139,6 +171,17 @@ class _Link:
                                                          attempts=2))
         self.planner = stack.enter_context(RequestClient(planner["planner"], timeout_s=config.request_timeout_s,
                                                          attempts=2))
+
+    def configure_tracker(self, tracker: TrackerConfig) -> None:
+        """Send the perception service the parameters that make its tracker ``tracker``, over
+        its control socket, and check that they are in force."""
+        status = self.control.request(StatusRequest(request_id=0))
+        changes = tracker_parameters_to_send(tracker, status.parameters)
+        if changes:
+            status = self.control.request(SetParametersRequest(request_id=0, parameters=changes))
+        wrong = {k: v for k, v in tracker_parameters(tracker).items() if status.parameters.get(k) != v}
+        if wrong:
+            raise RuntimeError(f"perception service runs other tracker parameters than the trial's: {wrong}")
 
     def estimate_of(self, frame) -> MeshEstimate:
         """Publish ``frame`` until its estimate arrives (back-off 0.5 s doubling to 4 s); bounded."""
@@ -234,6 +277,7 @@ def run_trial(seed: int, config: TrialConfig | None = None,
     """
     # zmq and PyBullet are loaded when a trial runs, not when the runner imports this module.
     from ipc.transport import Publisher
+    from launch_scripts.planner_service import arguments_from_config
     from sim.laundry import LaundryScene, laundry_spec
 
     config = config if config is not None else TrialConfig()
@@ -249,14 +293,14 @@ def run_trial(seed: int, config: TrialConfig | None = None,
                 stack.enter_context(tempfile.TemporaryDirectory(prefix="clothkit_trial_")))
             children = stack.enter_context(Children(log_dir))
             frames_pub = stack.enter_context(Publisher(FREE_PORT, source=f"trial seed {seed}"))
-            perception = children.start("perception", "launch_scripts.perception_service", [
+            perception = children.start("perception", SERVICES["perception"], [
                 "--frames", frames_pub.endpoint, "--estimates", FREE_PORT, "--control", FREE_PORT, "--print-endpoints",
-                "--no-auto-init", "-v", *config.tracker_args])
-            planner = children.start("planner", "launch_scripts.planner_service", [
+                "--no-auto-init", "-v"])
+            planner = children.start("planner", SERVICES["planner"], [
                 "--estimates", perception["estimates"], "--frames", frames_pub.endpoint, "--bind", FREE_PORT,
-                "--print-endpoint", "--kinds", config.kind, "--T-world-cam", *(f"{v:.9g}" for v in scene.T_world_cam.ravel()),
-                *_workspace_args(scene), *config.planner_args])
+                "--print-endpoint", "--kinds", config.kind, *arguments_from_config(planner_config(config, scene))])
             link = _Link(stack, children, frames_pub, perception, planner, config)
+            link.configure_tracker(config.tracker)
             _observe_plan_execute(scene, link, config, choose_plan, record)
         except (ChildError, TimeoutError, OSError, RuntimeError, ValueError) as e:
             log.warning("seed %d: %s: %s", seed, type(e).__name__, e)
@@ -374,7 +418,18 @@ def _plan_panel(scene, frame, reply: GraspPlanReply, plan: GraspPlan, estimate, 
 
 
 def trial_config_dict(config: TrialConfig) -> dict:
-    """The settings of a trial as a JSON-ready dict (for the report)."""
-    out = asdict(config)
-    out["tracker_args"], out["planner_args"] = list(config.tracker_args), list(config.planner_args)
-    return out
+    """The settings of a trial as a JSON-ready dict (for the report): arrays as lists, and
+    numbers that are not finite (an unbounded workspace) as None."""
+
+    def ready(value):
+        if isinstance(value, dict):
+            return {k: ready(v) for k, v in value.items()}
+        if isinstance(value, np.ndarray):
+            return ready(value.tolist())
+        if isinstance(value, (list, tuple)):
+            return [ready(v) for v in value]
+        if isinstance(value, (float, np.floating)):
+            return float(value) if math.isfinite(value) else None
+        return value.item() if isinstance(value, np.generic) else value
+
+    return ready(asdict(config))

@@ -104,9 +104,12 @@ def test_one_trial_on_a_local_ray_instance(tmp_path):
     assert record["seed"] == 2 and not record["failure"].startswith("error")
 
 
-def test_a_service_that_cannot_start_fails_the_trial_in_one_line_and_leaves_no_process(tmp_path):
-    config = TrialConfig(tracker_args=("--spacing-m", "not-a-number"), scene_options={"state": "flat"},
-                         log_dir=str(tmp_path))
+def test_a_service_that_cannot_start_fails_the_trial_in_one_line_and_leaves_no_process(tmp_path, monkeypatch):
+    from launch_scripts.trial_runner import trial
+
+    # a perception service that refuses its arguments
+    monkeypatch.setitem(trial.SERVICES, "perception", "launch_scripts.track")
+    config = TrialConfig(scene_options={"state": "flat"}, log_dir=str(tmp_path))
     before = set(children_of(os.getpid()))
     record = run_trial(4, config)
     assert set(children_of(os.getpid())) <= before

@@ -1,0 +1,53 @@
+"""A trial's settings: one TrackerConfig and one GraspPlannerConfig, and how each reaches its service."""
+
+import dataclasses
+import json
+import math
+
+import numpy as np
+import pytest
+
+from grasping import GraspPlannerConfig
+from launch_scripts.planner_service import arguments_from_config, build_parser, config_from_args
+from launch_scripts.trial_runner.trial import (
+    TRIAL_TRACKER,
+    TrialConfig,
+    tracker_parameters_to_send,
+    trial_config_dict,
+)
+from perception.geometry import look_at
+from perception.parameters import tracker_parameters
+from perception.tracker import TrackerConfig
+
+
+def test_the_tracker_travels_as_the_parameters_that_differ_from_the_service():
+    started = tracker_parameters(TrackerConfig())
+    assert tracker_parameters_to_send(TRIAL_TRACKER, started) == {"spacing_m": 0.015, "use_boundary": False,
+                                                                   "features": "klt"}
+    # nothing to send once the service runs it
+    assert tracker_parameters_to_send(TRIAL_TRACKER, tracker_parameters(TRIAL_TRACKER)) == {}
+    # a setting a request cannot carry is refused, not silently dropped
+    with pytest.raises(ValueError, match="TrialConfig.tracker.outlier_radii_m"):
+        tracker_parameters_to_send(TrackerConfig(outlier_radii_m=(0.1,)), started)
+
+
+def test_the_planner_options_give_the_service_the_trial_planner():
+    config = GraspPlannerConfig(pinch_inset_m=0.0, T_world_cam=look_at([0.2, -1.1, 1.9], [0.0, 0.0, 0.74]),
+                                up_world=np.array([0.0, 0.0, 1.0]), workspace_min_world=[-0.8, -0.6, 0.7123456789],
+                                workspace_max_world=[0.8, 0.6, 2.25], corner_max_angle_rad=math.radians(120.0),
+                                min_score=0.1)
+    served = config_from_args(build_parser().parse_args(arguments_from_config(config)))
+    for f in dataclasses.fields(GraspPlannerConfig):
+        assert np.array_equal(getattr(served, f.name), getattr(config, f.name)), f.name
+    unbounded = config_from_args(build_parser().parse_args(arguments_from_config(GraspPlannerConfig())))
+    assert np.all(np.isinf(unbounded.workspace_min_world))
+    with pytest.raises(ValueError, match="GraspPlannerConfig.clearance_radius_m: the planner service has no option"):
+        arguments_from_config(GraspPlannerConfig(clearance_radius_m=0.2))
+
+
+def test_the_settings_are_strict_json():
+    settings = trial_config_dict(TrialConfig())
+    text = json.dumps(settings, allow_nan=False)
+    assert json.loads(text)["tracker"]["spacing_m"] == 0.015
+    assert settings["planner"]["workspace_min_world"] == [None, None, None]  # unbounded
+    assert settings["planner"]["pinch_inset_m"] == 0.0 and settings["kind"] == "corner"
