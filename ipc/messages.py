@@ -2,8 +2,10 @@
 
 Each message is a plain dataclass holding NumPy arrays and scalars. The numerical
 core (tracker, grasp selection) takes and returns these; the codec in
-``ipc.codec`` turns them into msgpack bytes and back. Arrays use the conventions of
-DESIGN.md: metres, seconds, radians, OpenCV optical camera frame.
+``ipc.codec`` turns them into msgpack bytes and back. Each field declares the wire type
+it travels as (``ipc.wire.field``): the codec's schemas are derived from these classes.
+Arrays use the toolkit's conventions: metres, seconds, radians, OpenCV optical camera
+frame.
 
 Constructors validate shapes, dtypes and values and raise ``ValueError`` with a
 one-line message naming the field, so a bad frame is caught where it enters.
@@ -12,11 +14,18 @@ one-line message naming the field, so a bad frame is caught where it enters.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
+from ipc import wire
+
 SCHEMA_VERSION = 3
+
+# Wire types shared by several fields.
+_REQUEST_ID = wire.Int(lo=0)  # echoed in the reply
+_COUNT = wire.Int(lo=0)
+_DURATION_OR_NIL = wire.Optional(wire.Float(lo=0.0))  # nil while nothing was measured
 
 
 def _check_mask(name: str, value, shape: tuple) -> np.ndarray:
@@ -60,11 +69,11 @@ class CameraInfo:
     frame_id : name of the optical frame the camera looks along (+z)
     """
 
-    width: int
-    height: int
-    K: np.ndarray
-    D: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    frame_id: str = "camera_color_optical_frame"
+    width: int = wire.field(wire.Int(1, 65535))
+    height: int = wire.field(wire.Int(1, 65535))
+    K: np.ndarray = wire.field(wire.Array(("float64",), 2))
+    D: np.ndarray = wire.field(wire.Array(("float64",), 1), default_factory=lambda: np.zeros(0))
+    frame_id: str = wire.field(wire.Str(), default="camera_color_optical_frame")
 
     def __post_init__(self):
         if int(self.width) <= 0 or int(self.height) <= 0:
@@ -118,12 +127,12 @@ class RGBDFrame:
         non-zero. The tracker never binds the object to these pixels.
     """
 
-    rgb: np.ndarray
-    depth_m: np.ndarray
-    camera: CameraInfo
-    timestamp_s: float = 0.0
-    seq: int = 0
-    occluder_mask: np.ndarray | None = None
+    rgb: np.ndarray = wire.field(wire.Array(("uint8",), 3))
+    depth_m: np.ndarray = wire.field(wire.Array(("float32", "uint16"), 2))
+    camera: CameraInfo = wire.field(wire.Nested(CameraInfo))
+    timestamp_s: float = wire.field(wire.Float(), default=0.0)
+    seq: int = wire.field(wire.Int(), default=0)
+    occluder_mask: np.ndarray | None = wire.field(wire.Optional(wire.Array(("uint8",), 2)), default=None)
 
     def __post_init__(self):
         cam = self.camera
@@ -173,19 +182,19 @@ class MeshEstimate:
         behind something nearer, not out of view, with depth), or None when not known
     """
 
-    vertices: np.ndarray
-    faces: np.ndarray
-    boundary: np.ndarray
-    canonical: np.ndarray
-    timestamp_s: float = 0.0
-    seq: int = 0
-    energies: dict = field(default_factory=dict)
-    iterations: int = 0
-    confidence: float = 1.0
-    lost: bool = False
-    timing_ms: float = 0.0
-    frame_id: str = "camera_color_optical_frame"
-    visible: np.ndarray | None = None
+    vertices: np.ndarray = wire.field(wire.Array(("float64",), 2))
+    faces: np.ndarray = wire.field(wire.Array(("int32",), 2))
+    boundary: np.ndarray = wire.field(wire.Array(("int32",), 1))
+    canonical: np.ndarray = wire.field(wire.Array(("float64",), 2))
+    timestamp_s: float = wire.field(wire.Float(), default=0.0)
+    seq: int = wire.field(wire.Int(), default=0)
+    energies: dict = wire.field(wire.Map(wire.Float()), default_factory=dict)
+    iterations: int = wire.field(wire.Int(lo=0), default=0)
+    confidence: float = wire.field(wire.Float(), default=1.0)
+    lost: bool = wire.field(wire.Bool(), default=False)
+    timing_ms: float = wire.field(wire.Float(lo=0.0), default=0.0)
+    frame_id: str = wire.field(wire.Str(), default="camera_color_optical_frame")
+    visible: np.ndarray | None = wire.field(wire.Optional(wire.Array(("uint8",), 1)), default=None)
 
     def __post_init__(self):
         v = _check_array("MeshEstimate.vertices", self.vertices, (None, 3), np.float64, finite=True)
@@ -221,15 +230,15 @@ class GraspPlan:
     kind : "corner", "boundary" or "highest"
     """
 
-    position: np.ndarray
-    approach: np.ndarray
-    quat_xyzw: np.ndarray
-    opening_width_m: float
-    score: float
-    vertex_id: int
-    kind: str
-    frame_id: str = "camera_color_optical_frame"
-    timestamp_s: float = 0.0
+    position: np.ndarray = wire.field(wire.Array(("float64",), 1))
+    approach: np.ndarray = wire.field(wire.Array(("float64",), 1))
+    quat_xyzw: np.ndarray = wire.field(wire.Array(("float64",), 1))
+    opening_width_m: float = wire.field(wire.Float())
+    score: float = wire.field(wire.Float())
+    vertex_id: int = wire.field(wire.Int(lo=0))
+    kind: str = wire.field(wire.Str())
+    frame_id: str = wire.field(wire.Str(), default="camera_color_optical_frame")
+    timestamp_s: float = wire.field(wire.Float(), default=0.0)
 
     KINDS = ("corner", "boundary", "highest")
 
@@ -318,10 +327,10 @@ class GraspRequest:
         planner has received from the perception service
     """
 
-    request_id: int = 0
-    max_candidates: int = 5
-    kinds: tuple = GraspPlan.KINDS
-    estimate: MeshEstimate | None = None
+    request_id: int = wire.field(_REQUEST_ID, default=0)
+    max_candidates: int = wire.field(wire.Int(), default=5)
+    kinds: tuple = wire.field(wire.List(wire.Str()), default=GraspPlan.KINDS)
+    estimate: MeshEstimate | None = wire.field(wire.Optional(wire.Nested(MeshEstimate)), default=None)
 
     MAX_CANDIDATES = 100
 
@@ -351,9 +360,9 @@ class GraspPlanReply:
     estimate_seq : ``seq`` of the MeshEstimate planned on
     """
 
-    request_id: int = 0
-    candidates: tuple = ()
-    estimate_seq: int = 0
+    request_id: int = wire.field(_REQUEST_ID, default=0)
+    candidates: tuple = wire.field(wire.List(wire.Nested(GraspPlan)), default=())
+    estimate_seq: int = wire.field(wire.Int(), default=0)
 
     def __post_init__(self):
         object.__setattr__(self, "request_id", _check_request_id("GraspPlanReply", self.request_id))
@@ -377,8 +386,8 @@ class InitialiseRequest:
         None to find the object by depth segmentation. A bool mask is converted.
     """
 
-    request_id: int = 0
-    mask: np.ndarray | None = None
+    request_id: int = wire.field(_REQUEST_ID, default=0)
+    mask: np.ndarray | None = wire.field(wire.Optional(wire.Array(("uint8",), 2)), default=None)
 
     def __post_init__(self):
         object.__setattr__(self, "request_id", _check_request_id("InitialiseRequest", self.request_id))
@@ -400,7 +409,7 @@ class ResetRequest:
     request_id : int >= 0, echoed in the reply
     """
 
-    request_id: int = 0
+    request_id: int = wire.field(_REQUEST_ID, default=0)
 
     def __post_init__(self):
         object.__setattr__(self, "request_id", _check_request_id("ResetRequest", self.request_id))
@@ -415,8 +424,8 @@ class SetParametersRequest:
         service accepts are those in its StatusReply.parameters; others are refused.
     """
 
-    request_id: int = 0
-    parameters: dict = field(default_factory=dict)
+    request_id: int = wire.field(_REQUEST_ID, default=0)
+    parameters: dict = wire.field(wire.Map(wire.Scalar()), default_factory=dict)
 
     def __post_init__(self):
         object.__setattr__(self, "request_id", _check_request_id("SetParametersRequest", self.request_id))
@@ -435,9 +444,9 @@ class OccluderMaskRequest:
         applies to every frame from now on until it is replaced or cleared
     """
 
-    request_id: int = 0
-    mask: np.ndarray | None = None
-    seq: int = -1
+    request_id: int = wire.field(_REQUEST_ID, default=0)
+    mask: np.ndarray | None = wire.field(wire.Optional(wire.Array(("uint8",), 2)), default=None)
+    seq: int = wire.field(wire.Int(lo=-1), default=-1)
 
     def __post_init__(self):
         object.__setattr__(self, "request_id", _check_request_id("OccluderMaskRequest", self.request_id))
@@ -458,7 +467,7 @@ class StatusRequest:
     request_id : int >= 0, echoed in the reply
     """
 
-    request_id: int = 0
+    request_id: int = wire.field(_REQUEST_ID, default=0)
 
     def __post_init__(self):
         object.__setattr__(self, "request_id", _check_request_id("StatusRequest", self.request_id))
@@ -503,28 +512,28 @@ class StatusReply:
     None stands for "no data yet" (nil on the wire), never NaN.
     """
 
-    request_id: int = 0
-    state: str = "idle"
-    frames_processed: int = 0
-    last_seq: int = -1
-    parameters: dict = field(default_factory=dict)
-    message: str = ""
-    uptime_s: float = 0.0
-    source: str = "waiting"
-    frame_age_s: float | None = None
-    frames_received: int = 0
-    frames_tracked: int = 0
-    frames_dropped: int = 0
-    frames_rejected: int = 0
-    rejected_by_kind: dict = field(default_factory=dict)
-    messages_malformed: int = 0
-    latency_ms_median: float | None = None
-    latency_ms_p99: float | None = None
-    tracking_ms_median: float | None = None
-    confidence: float | None = None
-    lost_streak: int = 0
-    reinitialisations: int = 0
-    discontinuities: int = 0
+    request_id: int = wire.field(_REQUEST_ID, default=0)
+    state: str = wire.field(wire.Str(), default="idle")
+    frames_processed: int = wire.field(_COUNT, default=0)
+    last_seq: int = wire.field(wire.Int(), default=-1)
+    parameters: dict = wire.field(wire.Map(wire.Scalar()), default_factory=dict)
+    message: str = wire.field(wire.Str(), default="")
+    uptime_s: float = wire.field(wire.Float(lo=0.0), default=0.0)
+    source: str = wire.field(wire.Str(), default="waiting")
+    frame_age_s: float | None = wire.field(_DURATION_OR_NIL, default=None)
+    frames_received: int = wire.field(_COUNT, default=0)
+    frames_tracked: int = wire.field(_COUNT, default=0)
+    frames_dropped: int = wire.field(_COUNT, default=0)
+    frames_rejected: int = wire.field(_COUNT, default=0)
+    rejected_by_kind: dict = wire.field(wire.Map(_COUNT), default_factory=dict)
+    messages_malformed: int = wire.field(_COUNT, default=0)
+    latency_ms_median: float | None = wire.field(_DURATION_OR_NIL, default=None)
+    latency_ms_p99: float | None = wire.field(_DURATION_OR_NIL, default=None)
+    tracking_ms_median: float | None = wire.field(_DURATION_OR_NIL, default=None)
+    confidence: float | None = wire.field(wire.Optional(wire.Float(lo=0.0)), default=None)
+    lost_streak: int = wire.field(_COUNT, default=0)
+    reinitialisations: int = wire.field(_COUNT, default=0)
+    discontinuities: int = wire.field(_COUNT, default=0)
 
     STATES = ("idle", "initialising", "tracking", "lost")
     SOURCES = ("waiting", "live", "stale")
@@ -575,9 +584,9 @@ class ErrorReply:
     request_id : the request's id when it could be decoded, else 0
     """
 
-    code: str
-    message: str
-    request_id: int = 0
+    code: str = wire.field(wire.Str())
+    message: str = wire.field(wire.Str())
+    request_id: int = wire.field(_REQUEST_ID, default=0)
 
     CODES = ("protocol", "unsupported", "invalid", "not_ready", "internal")
 
@@ -600,10 +609,10 @@ class Heartbeat:
     period_s : > 0, seconds until the next heartbeat
     """
 
-    source: str
-    seq: int = 0
-    timestamp_s: float = 0.0
-    period_s: float = 1.0
+    source: str = wire.field(wire.Str())
+    seq: int = wire.field(wire.Int(lo=0), default=0)
+    timestamp_s: float = wire.field(wire.Float(), default=0.0)
+    period_s: float = wire.field(wire.Float(positive=True), default=1.0)
 
     def __post_init__(self):
         if not isinstance(self.source, str) or not self.source:
@@ -617,3 +626,8 @@ class Heartbeat:
         object.__setattr__(self, "seq", int(self.seq))
         object.__setattr__(self, "timestamp_s", float(self.timestamp_s))
         object.__setattr__(self, "period_s", float(self.period_s))
+
+
+#: Every message that travels, in the order docs/protocol.md lists them.
+MESSAGES = (CameraInfo, RGBDFrame, MeshEstimate, GraspPlan, GraspRequest, GraspPlanReply, InitialiseRequest,
+            OccluderMaskRequest, ResetRequest, SetParametersRequest, StatusRequest, StatusReply, ErrorReply, Heartbeat)
