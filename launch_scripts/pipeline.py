@@ -24,12 +24,9 @@ Exit status: 0 after Ctrl-C, --duration-s, or the source's normal end; 1 if a ch
 from __future__ import annotations
 
 import argparse
-import ctypes
 import json
-import select
 import shlex
 import signal
-import subprocess
 import sys
 import threading
 import time
@@ -38,13 +35,11 @@ from ipc import endpoints
 from ipc.messages import MeshEstimate, StatusReply, StatusRequest
 from ipc.transport import CurveKeys, RemoteError, RequestClient, RequestTimeout, Subscriber
 from launch_scripts.cli import OneLineParser, stop_on_signals
+from launch_scripts.processes import Children
 
 FREE_PORT = "tcp://127.0.0.1:*"
 #: Seconds a child gets to bind its sockets (imports of NumPy, OpenCV, PyBullet included).
 STARTUP_TIMEOUT_S = 60.0
-#: Seconds a child gets to stop after SIGTERM before it is killed.
-STOP_TIMEOUT_S = 5.0
-_PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -66,40 +61,6 @@ def build_parser() -> argparse.ArgumentParser:
                         "python -m launch_scripts.curve_keys")
     p.add_argument("source", nargs=argparse.REMAINDER, help="SOURCE [options] for launch_scripts.publish_frames")
     return p
-
-
-def _die_with_parent() -> None:
-    """Runs in the child before exec: the kernel sends it SIGTERM when its parent dies."""
-    ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-
-
-def start_child(name: str, module: str, args: list[str], procs: dict) -> dict:
-    """Start ``python -m module args`` as ``procs[name]``; return the endpoints it prints as
-    one JSON line once bound (its --print-endpoint(s) option)."""
-    command = [sys.executable, "-m", module, *args]
-    # preexec_fn is unsafe once threads run; children are started before the monitor's sockets (and threads) exist.
-    preexec = _die_with_parent if sys.platform.startswith("linux") else None
-    procs[name] = proc = subprocess.Popen(command, stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, text=True,
-                                          preexec_fn=preexec)
-    ready, _, _ = select.select([proc.stdout], [], [], STARTUP_TIMEOUT_S)
-    line = proc.stdout.readline() if ready else ""
-    if not line:
-        raise RuntimeError(f"the {name} did not start (exit status {proc.poll()}); see its messages above")
-    return json.loads(line)
-
-
-def stop_children(procs: list[subprocess.Popen]) -> None:
-    """SIGTERM every child still running, then SIGKILL those that do not stop in time."""
-    for proc in procs:
-        if proc.poll() is None:
-            proc.terminate()
-    deadline = time.monotonic() + STOP_TIMEOUT_S
-    for proc in procs:
-        try:
-            proc.wait(timeout=max(0.0, deadline - time.monotonic()))
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 def describe(estimate: MeshEstimate) -> str:
@@ -160,28 +121,28 @@ def main(argv=None) -> int:
     ports = {"frames": endpoints.FRAMES, "estimates": endpoints.ESTIMATES, "control": endpoints.PERCEPTION_CONTROL}
     if not args.default_endpoints:
         ports = dict.fromkeys(ports, FREE_PORT)
-    procs: dict[str, subprocess.Popen] = {}
+    children = Children(log_dir=None, startup_timeout_s=STARTUP_TIMEOUT_S)  # their messages go to this stderr
     try:
-        bound = start_child("frame source", "launch_scripts.publish_frames",
-                            [*args.source, "--endpoint", ports["frames"], "--print-endpoint", *security], procs)
+        bound = children.start("frame source", "launch_scripts.publish_frames",
+                               [*args.source, "--endpoint", ports["frames"], "--print-endpoint", *security])
         service_args = ["--frames", bound["frames"], "--estimates", ports["estimates"], "--control", ports["control"],
                         "--print-endpoints", "--preset", args.preset, "--reinit-after-lost", str(args.reinit_after_lost),
                         *security]
         service_args += ["--features", args.features] if args.features else []
         service_args += ["--no-auto-init"] if args.no_auto_init else []
         service_args += ["--viewer"] if args.viewer else []
-        ends = start_child("perception service", "launch_scripts.perception_service",
-                           service_args + shlex.split(args.service_args), procs)
+        ends = children.start("perception service", "launch_scripts.perception_service",
+                              service_args + shlex.split(args.service_args))
         # The first line, as perception_service --print-endpoints prints it: a controller parses it.
         print(json.dumps({name: ends[name] for name in ("frames", "estimates", "control")}), flush=True)
-        return monitor(ends, procs, stop, args, curve)
+        return monitor(ends, children.procs, stop, args, curve)
     except KeyboardInterrupt:
         return 0
     except RuntimeError as e:
         print(f"error: {e}", file=sys.stderr)
         return 1
     finally:
-        stop_children(list(procs.values()))
+        children.stop_all()
 
 
 if __name__ == "__main__":

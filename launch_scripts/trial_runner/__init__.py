@@ -2,7 +2,6 @@
 
 - ``trial``: ``run_trial(seed, TrialConfig)``, the one trial function (pool, Ray, tests):
   it starts the services, streams the scene's frames to them and records the outcome.
-- ``processes``: the trial's child processes, started with bounded waits, always stopped.
 - ``report``: REPORT.json and the markdown summary, with Wilson intervals.
 
 The task itself (scene, controller policy, judge) is ``sim.laundry``'s. The command line

@@ -50,7 +50,7 @@ from ipc.messages import (
     StatusReply,
     StatusRequest,
 )
-from launch_scripts.trial_runner.processes import ChildError, Children
+from launch_scripts.processes import ChildError, Children
 from perception.parameters import tracker_parameters
 from perception.tracker import TrackerConfig
 from sim.grasp_execution import ExecutionConfig, execute_grasp

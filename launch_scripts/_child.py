@@ -1,4 +1,4 @@
-"""Run a module as a child that dies with its parent: ``python -m launch_scripts.trial_runner._child PARENT_PID MODULE ARGS...``.
+"""Run a module as a child that dies with its parent: ``python -m launch_scripts._child PARENT_PID MODULE ARGS...``.
 
 On Linux it asks the kernel to send it SIGTERM when its parent dies (prctl
 PR_SET_PDEATHSIG), then checks that the parent is still the one that started it (it may
