@@ -148,7 +148,8 @@ class GraspPlannerConfig:
         lower = np.asarray(self.workspace_min_world, dtype=np.float64)
         upper = np.asarray(self.workspace_max_world, dtype=np.float64)
         if lower.shape != (3,) or upper.shape != (3,):
-            raise ValueError(f"Expected workspace_min_world and workspace_max_world with shape (3,), got {lower.shape} and {upper.shape}")
+            raise ValueError(f"Expected workspace_min_world and workspace_max_world with shape (3,), "
+                             f"got {lower.shape} and {upper.shape}")
         if np.any(np.isnan(lower)) or np.any(np.isnan(upper)) or np.any(lower > upper):
             raise ValueError(f"Expected workspace_min_world <= workspace_max_world, got {lower.tolist()} and {upper.tolist()}")
         set_(self, "workspace_min_world", lower)
@@ -159,7 +160,8 @@ class GraspPlannerConfig:
         for name in ("weight_visibility", "weight_clearance", "weight_confidence", "weight_single_layer", "pinch_inset_m"):
             set_(self, name, check_positive(name, getattr(self, name), allow_zero=True))
         if self.weight_clearance + self.weight_confidence <= 0:
-            raise ValueError("Expected weight_clearance + weight_confidence > 0, got 0 (the score would be undefined without a frame)")
+            raise ValueError("Expected weight_clearance + weight_confidence > 0, got 0 "
+                             "(the score would be undefined without a frame)")
         if float(self.neighbour_geodesic_factor) < 1:
             raise ValueError(f"Expected neighbour_geodesic_factor >= 1, got {self.neighbour_geodesic_factor}")
         set_(self, "neighbour_geodesic_factor", float(self.neighbour_geodesic_factor))
@@ -454,7 +456,8 @@ def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerCo
     if frame is not None:
         points = estimate.vertices[vid]
         uv = project(points, frame.camera.K, frame.camera.D)
-        visibility = depth_agrees(points, frame.depth_m, uv, config.visibility_tol_m, config.visibility_window_px).astype(np.float64)
+        seen = depth_agrees(points, frame.depth_m, uv, config.visibility_tol_m, config.visibility_window_px)
+        visibility = seen.astype(np.float64)
         score = score + config.weight_visibility * visibility
         total_weight += config.weight_visibility
         if inward is not None:

@@ -84,7 +84,8 @@ def _rgbd_to_wire(frame: m.RGBDFrame, out: Outgoing) -> dict:
     far = float(units.max(initial=0.0))
     if far > _UINT16_MAX + 0.5:
         raise ProtocolError(
-            f"RGBDFrame.depth_m: {far / scale:.3f} m exceeds the uint16 range at depth_scale {scale:g} (max {_UINT16_MAX / scale:.3f} m)"
+            f"RGBDFrame.depth_m: {far / scale:.3f} m exceeds the uint16 range at depth_scale {scale:g} "
+            f"(max {_UINT16_MAX / scale:.3f} m)"
         )
     np.rint(units, out=units)
     values["depth_m"] = units.astype(np.uint16)
@@ -218,7 +219,8 @@ def _unpack_header(header, limits: Limits) -> tuple[Message, dict]:
         raise ProtocolError(f"header: expected a map with keys type, version, fields; got {_short(got)}")
     version = top["version"]
     if isinstance(version, bool) or not isinstance(version, int) or version != m.SCHEMA_VERSION:
-        raise ProtocolError(f"header.version: unsupported schema version {_short(version)}; this decoder speaks {m.SCHEMA_VERSION}")
+        raise ProtocolError(f"header.version: unsupported schema version {_short(version)}; "
+                            f"this decoder speaks {m.SCHEMA_VERSION}")
     cls = MESSAGE_TYPES.get(top["type"]) if isinstance(top["type"], str) else None
     if cls is None:
         raise ProtocolError(f"header.type: unknown message type {_short(top['type'])}")

@@ -86,7 +86,8 @@ def example_messages() -> dict[type, object]:
         m.InitialiseRequest(request_id=7, mask=mask),
         m.OccluderMaskRequest(request_id=11, mask=mask, seq=42),
         m.ResetRequest(request_id=8),
-        m.SetParametersRequest(request_id=9, parameters={"lambda_d": 0.6, "max_iterations": 20, "use_depth": True, "features": "sift"}),
+        m.SetParametersRequest(request_id=9, parameters={"lambda_d": 0.6, "max_iterations": 20, "use_depth": True,
+                                                         "features": "sift"}),
         m.StatusRequest(request_id=10),
         m.StatusReply(
             request_id=10,

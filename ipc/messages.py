@@ -106,7 +106,7 @@ class CameraInfo:
         return float(self.K[1, 2])
 
     @classmethod
-    def from_fov(cls, width: int, height: int, fov_y_rad: float, **kw) -> "CameraInfo":
+    def from_fov(cls, width: int, height: int, fov_y_rad: float, **kw) -> CameraInfo:
         """Square-pixel camera with the principal point at the image centre."""
         f = 0.5 * height / math.tan(0.5 * fov_y_rad)
         K = np.array([[f, 0.0, 0.5 * width], [0.0, f, 0.5 * height], [0.0, 0.0, 1.0]])
@@ -429,7 +429,8 @@ class SetParametersRequest:
 
     def __post_init__(self):
         object.__setattr__(self, "request_id", _check_request_id("SetParametersRequest", self.request_id))
-        object.__setattr__(self, "parameters", _check_parameters("SetParametersRequest.parameters", self.parameters, allow_empty=False))
+        parameters = _check_parameters("SetParametersRequest.parameters", self.parameters, allow_empty=False)
+        object.__setattr__(self, "parameters", parameters)
 
 
 @dataclass(frozen=True)

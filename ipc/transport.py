@@ -726,11 +726,13 @@ class RequestClient:
             except zmq.Again:
                 pass  # could not even queue the request: same as no reply
             log.warning(
-                "%s: no reply to %s within %d ms (attempt %d of %d)", self.endpoint, type(msg).__name__, timeout_ms, attempt, self.attempts
+                "%s: no reply to %s within %d ms (attempt %d of %d)", self.endpoint, type(msg).__name__, timeout_ms, attempt,
+                self.attempts
             )
             self._socket.close()
             self._socket = None
-        raise RequestTimeout(f"{self.endpoint}: no reply to {type(msg).__name__} after {self.attempts} attempts of {timeout_ms} ms")
+        raise RequestTimeout(f"{self.endpoint}: no reply to {type(msg).__name__} after {self.attempts} attempts "
+                             f"of {timeout_ms} ms")
 
     def close(self) -> None:
         if self._socket is not None:
@@ -795,7 +797,8 @@ class ReplyServer:
             frames = encode(reply)
         except ProtocolError as e:
             log.error("%s: reply %s cannot be encoded: %s", self.endpoint, type(reply).__name__, e)
-            frames = encode(ErrorReply("internal", _one_line(f"reply could not be encoded: {e}"), getattr(reply, "request_id", 0)))
+            why = _one_line(f"reply could not be encoded: {e}")
+            frames = encode(ErrorReply("internal", why, getattr(reply, "request_id", 0)))
         sock.send_multipart(frames, copy=False)
         return True
 

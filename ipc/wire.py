@@ -311,7 +311,8 @@ class Array(Spec):
         arr = np.asarray(value)
         if arr.dtype == np.bool_ and "uint8" in self.dtypes:
             arr = arr.view(np.uint8)  # a mask travels as 0 and 1, viewed without a copy
-        name = next((n for n in self.dtypes if DTYPES[n].kind == arr.dtype.kind and DTYPES[n].itemsize == arr.dtype.itemsize), None)
+        name = next((n for n in self.dtypes
+                     if DTYPES[n].kind == arr.dtype.kind and DTYPES[n].itemsize == arr.dtype.itemsize), None)
         if name is None:
             raise ProtocolError(f"{where}: dtype {arr.dtype} cannot travel; expected one of {self.dtypes}")
         if arr.ndim != self.ndim:
@@ -343,7 +344,8 @@ class Array(Spec):
         dtype = DTYPES[name]
         nbytes = math.prod(shape) * dtype.itemsize  # Python ints: no overflow for absurd shapes
         if nbytes > inp.limits.max_array_bytes:
-            raise ProtocolError(f"{where}: declared shape {shape} needs {nbytes} bytes, over the limit of {inp.limits.max_array_bytes}")
+            raise ProtocolError(f"{where}: declared shape {shape} needs {nbytes} bytes, over the limit of "
+                                f"{inp.limits.max_array_bytes}")
         if "data" in obj:
             buf = obj["data"]
             if not isinstance(buf, bytes):
@@ -375,7 +377,8 @@ class Message(Spec):
         self.cls, self.fields = cls, fields
         self.to_wire, self.from_wire = to_wire, from_wire
         self.required = {
-            f.name for f in dataclasses.fields(cls) if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
+            f.name for f in dataclasses.fields(cls)
+            if f.default is dataclasses.MISSING and f.default_factory is dataclasses.MISSING
         }
 
     def encode(self, value, out, where):

@@ -36,7 +36,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="python -m launch_scripts.perception_service", description=__doc__.split("\n\n")[0])
     g = p.add_argument_group("endpoints")
     g.add_argument("--frames", default=endpoints.FRAMES, help=f"frame publisher to connect to (default {endpoints.FRAMES})")
-    g.add_argument("--estimates", default=endpoints.ESTIMATES, help=f"endpoint to publish estimates on (default {endpoints.ESTIMATES})")
+    g.add_argument("--estimates", default=endpoints.ESTIMATES,
+                   help=f"endpoint to publish estimates on (default {endpoints.ESTIMATES})")
     g.add_argument("--control", default=endpoints.PERCEPTION_CONTROL,
                    help=f"endpoint to answer control requests on (default {endpoints.PERCEPTION_CONTROL})")
     g.add_argument("--print-endpoints", action="store_true",

@@ -100,7 +100,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("rosbag", parents=[common], help="a ROS 1 or ROS 2 bag (rosbags)")
     p.add_argument("path", help="the bag (.bag file or ROS 2 bag folder)")
     p.add_argument("--rgb-topic", required=True, help="sensor_msgs/Image colour topic (rgb8 or bgr8)")
-    p.add_argument("--depth-topic", required=True, help="sensor_msgs/Image depth topic registered to colour (16UC1 mm or 32FC1 m)")
+    p.add_argument("--depth-topic", required=True,
+                   help="sensor_msgs/Image depth topic registered to colour (16UC1 mm or 32FC1 m)")
     p.add_argument("--info-topic", required=True, help="sensor_msgs/CameraInfo topic of the colour camera")
     return parser
 

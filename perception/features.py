@@ -63,7 +63,7 @@ class Keypoints:
     def __len__(self):
         return len(self.xy)
 
-    def subset(self, idx) -> "Keypoints":
+    def subset(self, idx) -> Keypoints:
         return Keypoints(self.xy[idx], self.desc[idx], self.binary)
 
 
@@ -84,7 +84,8 @@ class Detector:
         self.binary = self.kind == "orb"
 
     def detect(self, grey: np.ndarray, mask: np.ndarray) -> Keypoints:
-        empty = Keypoints(np.zeros((0, 2), np.float32), np.zeros((0, 32 if self.binary else 64), np.uint8 if self.binary else np.float32), self.binary)
+        descriptors = np.zeros((0, 32 if self.binary else 64), np.uint8 if self.binary else np.float32)
+        empty = Keypoints(np.zeros((0, 2), np.float32), descriptors, self.binary)
         box = bounding_box(mask, pad=16)  # detect in the object's box only: most of a frame is background
         if box is None:
             return empty
@@ -268,17 +269,17 @@ class _TrackedPoints:
     ref_xy: np.ndarray
 
     @classmethod
-    def empty(cls) -> "_TrackedPoints":
+    def empty(cls) -> _TrackedPoints:
         return cls(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros((0, 2), np.float32), np.zeros(0, np.int64),
                    np.zeros((0, 2), np.float32))
 
     def __len__(self):
         return len(self.face_ids)
 
-    def take(self, keep) -> "_TrackedPoints":
+    def take(self, keep) -> _TrackedPoints:
         return _TrackedPoints(self.face_ids[keep], self.bary[keep], self.xy[keep], self.ref[keep], self.ref_xy[keep])
 
-    def join(self, other: "_TrackedPoints") -> "_TrackedPoints":
+    def join(self, other: _TrackedPoints) -> _TrackedPoints:
         return _TrackedPoints(*(np.concatenate([getattr(self, f), getattr(other, f)])
                                 for f in ("face_ids", "bary", "xy", "ref", "ref_xy")))
 

@@ -121,7 +121,8 @@ def apply_parameters(config: TrackerConfig, parameters: dict) -> TrackerConfig:
         else:
             ok = isinstance(value, str)
         if not ok:
-            raise ValueError(f"tracker parameter {name!r}: expected {type(current).__name__}, got {type(value).__name__} {value!r}")
+            raise ValueError(f"tracker parameter {name!r}: expected {type(current).__name__}, "
+                             f"got {type(value).__name__} {value!r}")
         allowed = PARAMETER_RANGES.get(name)
         if allowed is not None and value not in allowed:
             raise ValueError(f"tracker parameter {name!r}: expected a value in {allowed}, got {value!r}")

@@ -1,6 +1,6 @@
 """Recorded RGB-D sequences on disk: the only module that knows the folder format.
 
-Layout (DESIGN.md, "Recorded sequence folder")::
+Layout (the recorded sequence folder; the offline command and the sim recorder use it)::
 
     SEQ/
       rgb.txt, depth.txt        TUM RGB-D lists: "timestamp relative/path" a line, '#' comments
@@ -218,7 +218,8 @@ def _read_mask(path: Path, camera: CameraInfo) -> np.ndarray:
     if img.ndim == 3:
         img = img.max(axis=2)
     if img.shape != (camera.height, camera.width):
-        raise SequenceError(f"{path}: size {img.shape[1]}x{img.shape[0]} differs from the camera's {camera.width}x{camera.height}")
+        raise SequenceError(f"{path}: size {img.shape[1]}x{img.shape[0]} differs from the camera's "
+                            f"{camera.width}x{camera.height}")
     return img > 0
 
 

@@ -231,8 +231,8 @@ class PerceptionCore:
     def _check_object_size(self, frame: RGBDFrame, mask: np.ndarray | None) -> None:
         """Raise TrackingError when the mesh laid over the object (``mask``, or the object
         depth segmentation finds) could exceed the vertex budget, or one of its triangles
-        the image, before the tracker spends memory and time on it. Segmenting here and again in the tracker costs one segmentation per
-        initialisation."""
+        the image, before the tracker spends memory and time on it. Segmenting here and again
+        in the tracker costs one segmentation per initialisation."""
         config = self.tracker.config
         if mask is None:
             mask = find_object(frame.depth_m, frame.camera.K, config.segmentation, self._rng)

@@ -190,7 +190,7 @@ class TrackerConfig:
         resolve_kind(self.features)
 
     @classmethod
-    def realtime(cls, **overrides) -> "TrackerConfig":
+    def realtime(cls, **overrides) -> TrackerConfig:
         """A preset for 30 Hz on two CPU cores: KLT points instead of descriptors, fewer and
         shorter iterations that stop once a step is predicted to gain under 5 % of the energy."""
         base = dict(features="klt", max_features=300, max_iterations=6, cg_iterations=4,

@@ -103,7 +103,8 @@ def markdown(rep: dict) -> str:
         if rate["n"] == 0:
             return "no trials"
         lo, hi = rate["wilson_95"]
-        return f"{rate['successes']}/{rate['n']} = {100 * rate['rate']:.1f} % (95 % Wilson interval {100 * lo:.1f}-{100 * hi:.1f} %)"
+        return (f"{rate['successes']}/{rate['n']} = {100 * rate['rate']:.1f} % "
+                f"(95 % Wilson interval {100 * lo:.1f}-{100 * hi:.1f} %)")
 
     seeds = [r["seed"] for r in rep["trials"]]
     parity = "even (development)" if all(x % 2 == 0 for x in seeds) else (

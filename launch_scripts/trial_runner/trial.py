@@ -268,7 +268,7 @@ def run_trial(seed: int, config: TrialConfig | None = None,
     None for a plan not among the candidates, such as the lowest point of a held cloth;
     ``chosen_by`` the controller's name),
     ``n_candidates``,
-    ``tracking_error_mm`` (mean and p95 of the estimate planned on, DESIGN metric),
+    ``tracking_error_mm`` (mean and p95 of the estimate planned on, the metric of ``sim.ground_truth``),
     ``confidence``, ``lifted_clear``, ``lowest_clearance_m``, ``held_nodes``,
     ``timing`` (``init_ms`` and median ``tracking_ms`` from the tracker, ``planning_ms``
     the request's round trip, ``total_s``), ``picture`` (path or None).

@@ -71,7 +71,7 @@ class FrameSource(abc.ABC):
     def frames(self) -> Iterator[RGBDFrame]:
         """One pass over the source's frames."""
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 -- not abstract: a source that holds nothing needs no close
         """Release what the source holds; the default holds nothing."""
 
     def __enter__(self):
@@ -106,6 +106,10 @@ class Pacing:
                 raise ValueError(f"Pacing.rate_hz: expected a positive number for mode 'rate', got {self.rate_hz!r}")
         elif self.rate_hz is not None:
             raise ValueError(f"Pacing.rate_hz: only for mode 'rate', got {self.rate_hz!r} with mode {self.mode!r}")
+
+
+#: The default pacing: the spacing of the frames' timestamps.
+REALTIME = Pacing()
 
 
 class _Schedule:
@@ -144,7 +148,7 @@ def publish_frames(
     source: FrameSource,
     publish: Callable[[RGBDFrame], None],
     *,
-    pacing: Pacing = Pacing(),
+    pacing: Pacing = REALTIME,
     loop: bool = False,
     max_frames: int | None = None,
     stop: threading.Event | None = None,

@@ -7,7 +7,7 @@ import threading
 from collections.abc import Callable
 
 from ipc.transport import HEARTBEAT_PERIOD_S, CurveServer, Publisher
-from perception.sources._base import FrameSource, Pacing, publish_frames
+from perception.sources._base import REALTIME, FrameSource, Pacing, publish_frames
 
 log = logging.getLogger(__name__)
 
@@ -16,7 +16,7 @@ def run_publisher(
     source: FrameSource,
     endpoint: str,
     *,
-    pacing: Pacing = Pacing(),
+    pacing: Pacing = REALTIME,
     loop: bool = False,
     max_frames: int | None = None,
     start_delay_s: float = 0.0,

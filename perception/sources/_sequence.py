@@ -1,4 +1,4 @@
-"""Frames replayed from a recorded sequence folder (DESIGN.md, "Recorded sequence folder")."""
+"""Frames replayed from a recorded sequence folder (its layout: ``perception.sequence``)."""
 
 from __future__ import annotations
 

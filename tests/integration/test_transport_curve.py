@@ -62,7 +62,8 @@ def test_unknown_client_key_is_refused(keys, server, caplog):
 
 
 def test_wrong_server_key_is_refused(keys, server):
-    with RequestClient(server.endpoint, timeout_s=0.3, attempts=2, curve=client_keys(keys, "client", server="stranger")) as client:
+    stranger = client_keys(keys, "client", server="stranger")
+    with RequestClient(server.endpoint, timeout_s=0.3, attempts=2, curve=stranger) as client:
         with pytest.raises(RequestTimeout):
             client.request(m.StatusRequest())
 

@@ -52,7 +52,8 @@ def rss_bytes() -> int:
 
 
 def test_delivery_heartbeats_and_filtering():
-    with Publisher(ANY_PORT, source="frames", heartbeat_period_s=0.05) as pub, Subscriber(pub.endpoint, accept=(m.RGBDFrame,)) as sub:
+    with Publisher(ANY_PORT, source="frames", heartbeat_period_s=0.05) as pub, \
+            Subscriber(pub.endpoint, accept=(m.RGBDFrame,)) as sub:
         assert pub.endpoint.startswith("tcp://127.0.0.1:") and not pub.endpoint.endswith("*")
         got = publish_until_received(pub, sub, FRAME)
         assert got.seq == FRAME.seq and np.array_equal(got.rgb, FRAME.rgb)
@@ -141,7 +142,8 @@ def test_publisher_killed_and_restarted(caplog):
             assert wait_until(lambda: sub.stale, 3.0)
             assert sub.age_s > 0.5
             assert events and events[0][0] is False and events[0][1] > 0.5
-            assert any(r.levelno == logging.WARNING and "no message from publisher 'frames'" in r.getMessage() for r in caplog.records)
+            assert any(r.levelno == logging.WARNING and "no message from publisher 'frames'" in r.getMessage()
+                       for r in caplog.records)
             sub.recv_latest(timeout_s=0.01)  # drop a frame taken before the kill, if any
 
             proc, _ = start_publisher(endpoint, generation=2)
@@ -283,9 +285,9 @@ def test_oversize_messages_do_not_deafen_the_subscriber():
     try:
         with Subscriber(endpoint, limits=limits) as sub:
             assert resend_until_received(raw, sub)
-            for _ in range(3):
+            for reconnects in range(3):
                 raw.send(b"x" * (limits.max_message_bytes + 1))
-                assert wait_until(lambda: sub.reconnects > _, 2.0)
+                assert wait_until(lambda n=reconnects: sub.reconnects > n, 2.0)
                 assert resend_until_received(raw, sub), "deaf after an oversize frame"
             raw.send(b"x" * (limits.max_message_bytes + 1))
             raw.close()

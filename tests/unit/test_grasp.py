@@ -468,15 +468,16 @@ def test_unreachable_corners_are_excluded():
     assert result.reason == "all 4 corner candidates rejected: 4 outside workspace"
 
 
-@pytest.mark.parametrize("mode, edge_approach", [("corner", "pinch"), ("boundary", "pinch"), ("corner", "normal"), ("highest", "pinch")])
-def test_gripper_frame_convention(mode, edge_approach):
+@pytest.mark.parametrize("kind, edge_approach",
+                         [("corner", "pinch"), ("boundary", "pinch"), ("corner", "normal"), ("highest", "pinch")])
+def test_gripper_frame_convention(kind, edge_approach):
     canonical, faces, boundary, _ = rectangle()
     tilt = Rotation.from_rotvec([0.2, 0.3, 0.1]).as_matrix()
     flat = estimate(canonical, faces, boundary)
     centre = flat.vertices.mean(axis=0)
     cloth = estimate(canonical, faces, boundary, vertices=(flat.vertices - centre) @ tilt.T + centre)
     normal_to_camera = tilt @ [0.0, 0.0, -1.0]  # the flat cloth's normal toward the camera is -z
-    config = GraspPlannerConfig(kind=mode, edge_approach=edge_approach, pinch_inset_m=0.0)
+    config = GraspPlannerConfig(kind=kind, edge_approach=edge_approach, pinch_inset_m=0.0)
     for plan in plan_grasps(cloth, config).plans:
         R = quat_to_matrix(plan.quat_xyzw)
         np.testing.assert_allclose(R.T @ R, np.eye(3), atol=1e-12)
@@ -487,13 +488,13 @@ def test_gripper_frame_convention(mode, edge_approach):
         assert plan.opening_width_m == config.opening_width_m
         np.testing.assert_allclose(plan.position, cloth.vertices[plan.vertex_id], atol=1e-12)
         to_centre = centre - plan.position
-        if mode == "highest" or edge_approach == "normal":
+        if kind == "highest" or edge_approach == "normal":
             np.testing.assert_allclose(plan.approach, -normal_to_camera, atol=1e-9)
         else:
             np.testing.assert_allclose(R[:, 0], normal_to_camera, atol=1e-9)  # fingers close across the cloth
             assert abs(plan.approach @ normal_to_camera) < 1e-9  # in the tangent plane
             assert plan.approach @ to_centre > 0  # from outside the cloth, inward
-        if mode != "highest" and edge_approach == "normal":
+        if kind != "highest" and edge_approach == "normal":
             assert abs(R[:, 0] @ normal_to_camera) < 1e-9 and R[:, 0] @ to_centre > 0  # across the edge
 
 
@@ -600,7 +601,8 @@ def test_planner_analyses_each_canonical_mesh_once(monkeypatch):
     canonical, faces, boundary, ids = rectangle()
     planner = GraspPlanner()
     for dz in (0.0, 0.1, 0.2):  # new arrays each time, as decoded messages are
-        moved = estimate(canonical.copy(), faces.copy(), boundary.copy(), vertices=estimate(canonical, faces, boundary).vertices + dz)
+        lifted = estimate(canonical, faces, boundary).vertices + dz
+        moved = estimate(canonical.copy(), faces.copy(), boundary.copy(), vertices=lifted)
         assert planner.plan(moved)
         np.testing.assert_array_equal(np.sort(planner.corners(moved)), np.sort(ids))
     assert calls == [len(canonical)]

@@ -54,7 +54,8 @@ def repack(top: dict, frames) -> list:
 
 
 def test_every_message_class_travels():
-    classes = {obj for obj in vars(m).values() if isinstance(obj, type) and dataclasses.is_dataclass(obj) and obj.__module__ == m.__name__}
+    classes = {obj for obj in vars(m).values()
+               if isinstance(obj, type) and dataclasses.is_dataclass(obj) and obj.__module__ == m.__name__}
     assert set(codec.MESSAGE_TYPES.values()) == classes
     assert all(codec.MESSAGE_TYPES[cls.__name__] is cls for cls in classes)
 
@@ -196,7 +197,8 @@ CASES = [
     (m.Heartbeat, lambda f: f.update(timestamp_s=float("nan")), r"Heartbeat\.timestamp_s: expected a finite number, got nan"),
     (m.Heartbeat, lambda f: f.update(period_s=float("inf")), r"Heartbeat\.period_s: expected a finite number, got inf"),
     (m.MeshEstimate, lambda f: f.update(timing_ms=-1.0), r"MeshEstimate\.timing_ms: expected a number >= 0"),
-    (m.MeshEstimate, lambda f: f["energies"].update(depth=float("-inf")), r"MeshEstimate\.energies\['depth'\]: expected a finite number"),
+    (m.MeshEstimate, lambda f: f["energies"].update(depth=float("-inf")),
+     r"MeshEstimate\.energies\['depth'\]: expected a finite number"),
     (m.MeshEstimate, lambda f: f.update(lost=1), r"MeshEstimate\.lost: expected a bool, got int"),
     (m.MeshEstimate, lambda f: f.update(confidence=1.5), r"MeshEstimate\.confidence: expected a value in \[0, 1\]"),
     (
@@ -215,20 +217,25 @@ CASES = [
         lambda f: set_array(f, "boundary", [[0, 1]], "int32"),
         r"MeshEstimate\.boundary: expected a shape of 1 non-negative integers",
     ),
-    (m.GraspPlan, lambda f: set_array(f, "position", [0, np.nan, 1], "float64"), r"GraspPlan\.position: contains NaN or infinite"),
+    (m.GraspPlan, lambda f: set_array(f, "position", [0, np.nan, 1], "float64"),
+     r"GraspPlan\.position: contains NaN or infinite"),
     (m.GraspPlan, lambda f: f.update(kind="middle"), r"GraspPlan\.kind: expected one of"),
     (m.GraspPlan, lambda f: f.update(vertex_id=-3), r"GraspPlan\.vertex_id: expected an integer in \[0, "),
-    (m.RGBDFrame, lambda f: set_array(f, "depth_m", np.full((3, 4), np.inf), "float32"), r"RGBDFrame\.depth_m: infinite depth values"),
-    (m.RGBDFrame, lambda f: set_array(f, "depth_m", np.full((3, 4), -1.0), "float32"), r"RGBDFrame\.depth_m: negative depth values"),
+    (m.RGBDFrame, lambda f: set_array(f, "depth_m", np.full((3, 4), np.inf), "float32"),
+     r"RGBDFrame\.depth_m: infinite depth values"),
+    (m.RGBDFrame, lambda f: set_array(f, "depth_m", np.full((3, 4), -1.0), "float32"),
+     r"RGBDFrame\.depth_m: negative depth values"),
     (
         m.RGBDFrame,
         lambda f: set_array(f, "depth_m", np.ones((3, 5)), "float32"),
         r"RGBDFrame\.depth_m: expected shape \(3, 4\), got \(3, 5\)",
     ),
-    (m.RGBDFrame, lambda f: set_array(f["camera"], "K", np.eye(3) * np.nan, "float64"), r"RGBDFrame\.camera: CameraInfo\.K: contains NaN"),
+    (m.RGBDFrame, lambda f: set_array(f["camera"], "K", np.eye(3) * np.nan, "float64"),
+     r"RGBDFrame\.camera: CameraInfo\.K: contains NaN"),
     (m.RGBDFrame, lambda f: f["camera"].update(width=0), r"RGBDFrame\.camera\.width: expected an integer in \[1, 65535\], got 0"),
     (m.RGBDFrame, lambda f: f.update(camera=[1, 2]), r"RGBDFrame\.camera: expected a map of fields, got list"),
-    (m.RGBDFrame, lambda f: f["rgb"].update(shape=[3, 4]), r"RGBDFrame\.rgb: expected a shape of 3 non-negative integers, got \[3, 4\]"),
+    (m.RGBDFrame, lambda f: f["rgb"].update(shape=[3, 4]),
+     r"RGBDFrame\.rgb: expected a shape of 3 non-negative integers, got \[3, 4\]"),
     (m.RGBDFrame, lambda f: f["rgb"].update(shape=[3, -4, 3]), r"RGBDFrame\.rgb: expected a shape of 3 non-negative integers"),
     (
         m.RGBDFrame,
@@ -242,10 +249,12 @@ CASES = [
     ),
     (m.RGBDFrame, lambda f: f["rgb"].update(dtype="object"), r"RGBDFrame\.rgb: dtype 'object' not allowed"),
     (m.RGBDFrame, lambda f: f["rgb"].update(data="abc"), r"RGBDFrame\.rgb: expected bin data, got str"),
-    (m.RGBDFrame, lambda f: f["rgb"].update(extra=1), r"RGBDFrame\.rgb: expected an array map with keys dtype, shape and data or frame"),
+    (m.RGBDFrame, lambda f: f["rgb"].update(extra=1),
+     r"RGBDFrame\.rgb: expected an array map with keys dtype, shape and data or frame"),
     (m.RGBDFrame, lambda f: f["rgb"].update(frame=1), r"RGBDFrame\.rgb: expected an array map"),
     (m.GraspRequest, lambda f: f.update(kinds="corner"), r"GraspRequest\.kinds: expected an array, got str"),
-    (m.GraspRequest, lambda f: f["estimate"].update(iterations=-1), r"GraspRequest\.estimate\.iterations: expected an integer in \[0, "),
+    (m.GraspRequest, lambda f: f["estimate"].update(iterations=-1),
+     r"GraspRequest\.estimate\.iterations: expected an integer in \[0, "),
     (m.GraspPlanReply, lambda f: f["candidates"].reverse(), r"GraspPlanReply\.candidates: expected best first"),
     (
         m.GraspPlanReply,
@@ -257,20 +266,30 @@ CASES = [
         lambda f: f["parameters"].update(x=[1]),
         r"SetParametersRequest\.parameters\['x'\]: expected bool, int, float or str, got list",
     ),
-    (m.SetParametersRequest, lambda f: f.update(parameters={}), r"SetParametersRequest\.parameters: expected at least one parameter"),
-    (m.InitialiseRequest, lambda f: set_array(f, "mask", np.zeros((2, 2)), "uint8"), r"InitialiseRequest\.mask: no non-zero pixel"),
+    (m.SetParametersRequest, lambda f: f.update(parameters={}),
+     r"SetParametersRequest\.parameters: expected at least one parameter"),
+    (m.InitialiseRequest, lambda f: set_array(f, "mask", np.zeros((2, 2)), "uint8"),
+     r"InitialiseRequest\.mask: no non-zero pixel"),
     (m.ErrorReply, lambda f: f.update(code="bad"), r"ErrorReply\.code: expected one of"),
     (m.StatusReply, lambda f: f.update(message=b"ok"), r"StatusReply\.message: expected a string, got bytes"),
-    (m.StatusReply, lambda f: f.update(frames_dropped=-1), r"^StatusReply\.frames_dropped: expected an integer in \[0, \d+\], got -1$"),
+    (m.StatusReply, lambda f: f.update(frames_dropped=-1),
+     r"^StatusReply\.frames_dropped: expected an integer in \[0, \d+\], got -1$"),
     (m.StatusReply, lambda f: f.update(frames_received=3.0), r"^StatusReply\.frames_received: expected an integer, got float$"),
-    (m.StatusReply, lambda f: f.update(messages_malformed=None), r"StatusReply\.messages_malformed: expected an integer, got NoneType"),
-    (m.StatusReply, lambda f: f["rejected_by_kind"].update(no_depth=-2), r"StatusReply\.rejected_by_kind\['no_depth'\]: expected an integer in \[0, "),
-    (m.StatusReply, lambda f: f["rejected_by_kind"].update(no_depth=5), r"StatusReply\.rejected_by_kind: counts sum to 6, expected frames_rejected = 3"),
-    (m.StatusReply, lambda f: f.update(latency_ms_median="fast"), r"^StatusReply\.latency_ms_median: expected a number, got str$"),
-    (m.StatusReply, lambda f: f.update(latency_ms_p99=float("nan")), r"StatusReply\.latency_ms_p99: expected a finite number, got nan"),
-    (m.StatusReply, lambda f: f.update(tracking_ms_median=-1.0), r"StatusReply\.tracking_ms_median: expected a number >= 0\.0, got -1\.0"),
+    (m.StatusReply, lambda f: f.update(messages_malformed=None),
+     r"StatusReply\.messages_malformed: expected an integer, got NoneType"),
+    (m.StatusReply, lambda f: f["rejected_by_kind"].update(no_depth=-2),
+     r"StatusReply\.rejected_by_kind\['no_depth'\]: expected an integer in \[0, "),
+    (m.StatusReply, lambda f: f["rejected_by_kind"].update(no_depth=5),
+     r"StatusReply\.rejected_by_kind: counts sum to 6, expected frames_rejected = 3"),
+    (m.StatusReply, lambda f: f.update(latency_ms_median="fast"),
+     r"^StatusReply\.latency_ms_median: expected a number, got str$"),
+    (m.StatusReply, lambda f: f.update(latency_ms_p99=float("nan")),
+     r"StatusReply\.latency_ms_p99: expected a finite number, got nan"),
+    (m.StatusReply, lambda f: f.update(tracking_ms_median=-1.0),
+     r"StatusReply\.tracking_ms_median: expected a number >= 0\.0, got -1\.0"),
     (m.StatusReply, lambda f: f.update(uptime_s=None), r"StatusReply\.uptime_s: expected a number, got NoneType"),
-    (m.StatusReply, lambda f: f.update(confidence=1.25), r"StatusReply\.confidence: expected a number in \[0, 1\] or None, got 1\.25"),
+    (m.StatusReply, lambda f: f.update(confidence=1.25),
+     r"StatusReply\.confidence: expected a number in \[0, 1\] or None, got 1\.25"),
     (m.StatusReply, lambda f: f.update(source="gone"), r"StatusReply\.source: expected one of"),
 ]
 
@@ -309,7 +328,8 @@ def test_header_errors():
 
 
 def test_extension_types_and_duplicate_keys_are_refused():
-    ext = msgpack.packb({"type": "StatusRequest", "version": m.SCHEMA_VERSION, "fields": {"request_id": msgpack.ExtType(1, b"\x80\x04N.")}})
+    pickled = msgpack.ExtType(1, b"\x80\x04N.")
+    ext = msgpack.packb({"type": "StatusRequest", "version": m.SCHEMA_VERSION, "fields": {"request_id": pickled}})
     with pytest.raises(ProtocolError, match="msgpack extension type 1 is not allowed"):
         decode([ext])
     # Hand-made map with the key "request_id" twice: a second value must not shadow the first.
@@ -334,7 +354,8 @@ def test_frame_references_are_checked():
         decode(frames[:1])
     with pytest.raises(ProtocolError, match="InitialiseRequest: frame 2 is not referenced by any array"):
         decode([*frames, b"spare"])
-    with pytest.raises(ProtocolError, match=r"InitialiseRequest\.mask: declared uint8 shape \[3, 4\] needs 12 bytes but frame 1 has 11"):
+    match = r"InitialiseRequest\.mask: declared uint8 shape \[3, 4\] needs 12 bytes but frame 1 has 11"
+    with pytest.raises(ProtocolError, match=match):
         decode([frames[0], bytes(frames[1])[:-1]])
     top = header(frames)
     top["fields"]["mask"]["frame"] = True

@@ -57,7 +57,8 @@ def hostile_values(rng: np.random.Generator) -> list:
         "", "x" * int(rng.integers(1, 300)), "RGBDFrame", "uint16", "float64", "int64", "object", "<f8",
         b"", bytes(rng.integers(0, 256, int(rng.integers(1, 64)), dtype=np.uint8)),
         [], [big, big, big], [2**40, 2**40, 3], [-1, 4, 3], [3, 4], [0, 0], [1.5, 2], [True, 2],
-        {}, {"dtype": "uint8", "shape": [2**31, 2**31, 3], "frame": 1}, {"dtype": "float64", "shape": [1, 3], "data": b"\x00" * 7},
+        {}, {"dtype": "uint8", "shape": [2**31, 2**31, 3], "frame": 1},
+        {"dtype": "float64", "shape": [1, 3], "data": b"\x00" * 7},
         {"dtype": "uint8", "shape": [1], "frame": 99}, {"a": 1}, {1: 2}, [[[[[]]]]],
         msgpack.ExtType(1, b"\x80\x04N."), msgpack.Timestamp(1, 0),
     ]  # fmt: skip

@@ -11,7 +11,8 @@ from ipc.examples import example_messages
 
 def test_examples_cover_every_message_class():
     classes = {
-        obj for obj in vars(m).values() if isinstance(obj, type) and obj.__module__ == m.__name__ and hasattr(obj, "__dataclass_fields__")
+        obj for obj in vars(m).values()
+        if isinstance(obj, type) and obj.__module__ == m.__name__ and hasattr(obj, "__dataclass_fields__")
     }
     assert classes == set(example_messages())
 

@@ -53,7 +53,7 @@ def test_follows_the_bar_and_leaves_the_hands_out():
     frames = [scene(k) for k in range(6)]
     masks = list(follow_object(((rgb, d) for rgb, d, _ in frames)))
     assert len(masks) == 6
-    for (rgb, depth, bar), mask in zip(frames, masks):
+    for (_, depth, bar), mask in zip(frames, masks):
         assert iou(mask, bar) > 0.97
         hands = (depth > 0) & ~bar
         assert (mask & hands).sum() < 0.02 * hands.sum()

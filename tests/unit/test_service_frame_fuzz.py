@@ -103,7 +103,8 @@ def test_every_frame_is_tracked_or_rejected_with_a_named_kind():
     assert set(rejected) <= NAMED_KINDS
     assert outcome["energies"] <= ENERGY_NAMES and {"smoothness", "total", "inliers"} <= outcome["energies"]
     energies_row = next(line for line in DOC.splitlines() if line.startswith("| `energies` |"))
-    assert all(f"`{name}`" in energies_row for name in ENERGY_NAMES)    # The fuzz reaches every check and still tracks good frames between the bad ones.
+    assert all(f"`{name}`" in energies_row for name in ENERGY_NAMES)
+    # The fuzz reaches every check and still tracks good frames between the bad ones.
     assert {"no_depth", "bad_depth", "bad_camera", "camera_changed", "init_failed"} <= set(rejected), rejected
     assert outcome["tracked"] > 20 and outcome["refused"] > 0, outcome
     assert core.counters.frames_taken == core.counters.processed + sum(rejected.values()) + outcome["idle"]

@@ -28,7 +28,8 @@ def depth_m(k):
 
 
 def image(store, stamp_s, data, encoding, step, ros1):
-    Time, Header, Image = (store.types[n] for n in ("builtin_interfaces/msg/Time", "std_msgs/msg/Header", "sensor_msgs/msg/Image"))
+    Time, Header, Image = (store.types[n]
+                           for n in ("builtin_interfaces/msg/Time", "std_msgs/msg/Header", "sensor_msgs/msg/Image"))
     sec = int(stamp_s)
     stamp = Time(sec=sec, nanosec=round((stamp_s - sec) * 1e9))
     header = Header(seq=0, stamp=stamp, frame_id="cam") if ros1 else Header(stamp=stamp, frame_id="cam")
@@ -68,8 +69,10 @@ def write_bag(path, ros1, colour_encoding="bgr8", depth_encoding="16UC1", n=3):
                 d, itemsize = depth_m(k).copy(), 4
                 d[0, 1] = np.nan  # NaN is "no measurement" in float depth
             # Depth is stamped 5 ms after colour and written first: pairing must use the stamps.
-            writer.write(conns["/depth"], 100 + 10 * k, serialize(image(store, t + 0.005, d, depth_encoding, W * itemsize + 4, ros1), "sensor_msgs/msg/Image"))
-            writer.write(conns["/rgb"], 101 + 10 * k, serialize(image(store, t, rgb, colour_encoding, W * 3, ros1), "sensor_msgs/msg/Image"))
+            depth_msg = image(store, t + 0.005, d, depth_encoding, W * itemsize + 4, ros1)
+            writer.write(conns["/depth"], 100 + 10 * k, serialize(depth_msg, "sensor_msgs/msg/Image"))
+            rgb_msg = image(store, t, rgb, colour_encoding, W * 3, ros1)
+            writer.write(conns["/rgb"], 101 + 10 * k, serialize(rgb_msg, "sensor_msgs/msg/Image"))
     return path
 
 

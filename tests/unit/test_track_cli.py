@@ -1,4 +1,4 @@
-"""The offline tracking command (DESIGN.md "Offline tracking command")."""
+"""The offline tracking command, python -m perception.track: EST.npz, its options, one-line errors."""
 
 import subprocess
 import sys
