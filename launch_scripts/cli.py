@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import inspect
+import logging
 import math
 import os
 import re
@@ -21,6 +22,30 @@ class OneLineParser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+#: The levels of ``--log-level``.
+LOG_LEVELS = ("DEBUG", "INFO", "WARNING", "ERROR")
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+
+def add_log_level_argument(parser, default: str = "WARNING") -> None:
+    """``--log-level LEVEL``, the same in every entry point (``configure_logging`` applies it)."""
+    parser.add_argument("--log-level", choices=LOG_LEVELS, default=default,
+                        help=f"log messages from this level up, on stderr (default {default})")
+
+
+def configure_logging(level: str, fmt: str = LOG_FORMAT) -> None:
+    """Send the log to stderr from ``level`` up; only entry points configure logging."""
+    logging.basicConfig(level=level, format=fmt)
+
+
+def add_print_endpoints_argument(parser, printed: str) -> None:
+    """``--print-endpoints``: print the endpoints bound (``printed``, a JSON object's keys) as one
+    JSON line on stdout once ready. ``--print-endpoint`` is the same option's earlier name
+    in docs/protocol.md, kept so that existing controllers' command lines still work."""
+    parser.add_argument("--print-endpoints", "--print-endpoint", dest="print_endpoints", action="store_true",
+                        help=f"print {printed} as one JSON line on stdout once ready")
 
 
 def positive_int(text: str) -> int:

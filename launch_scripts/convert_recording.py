@@ -10,13 +10,12 @@ perception.recordings). Bad input ends with exit status 2 and one line naming th
 
 from __future__ import annotations
 
-import logging
 import sys
 from pathlib import Path
 
 from tqdm import tqdm
 
-from launch_scripts.cli import OneLineParser, positive_int
+from launch_scripts.cli import OneLineParser, add_log_level_argument, configure_logging, positive_int
 from perception.recordings import FORMATS, read_recording, write_sequence
 from perception.sequence import SequenceError
 
@@ -30,12 +29,13 @@ def build_parser() -> OneLineParser:
                                       "needed when SRC holds several")
     p.add_argument("--max-frames", type=positive_int, help="convert only the first N frames")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    add_log_level_argument(p)
     return p
 
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    configure_logging(args.log_level, "%(levelname)s %(name)s: %(message)s")
     options = {}
     if args.sequence is not None:
         if args.format != "deepdeform":

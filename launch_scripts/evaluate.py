@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from launch_scripts.cli import add_log_level_argument, configure_logging
 from perception.tracker import TrackerConfig
 from sim.evaluation import ABLATIONS, cpd_recording, record_scene, track_recording
 from sim.evaluation.figures import cloud_of, error_over_time, overlay_strip, views
@@ -128,8 +129,9 @@ def main(argv=None) -> int:
     p.add_argument("--noise", choices=("both", "noisy", "clean"),
                    help="sensor noise (default: both for the paper table, noisy for --handled)")
     p.add_argument("--quiet", action="store_true", help="no progress bars (--handled)")
+    add_log_level_argument(p)
     args = p.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING)
+    configure_logging(args.log_level, "%(levelname)s:%(name)s:%(message)s")
     allowed = HANDLED_SCENES if args.handled else PAPER_SCENES
     args.scenes = list(args.scenes or allowed)
     unknown = [s for s in args.scenes if s not in allowed]

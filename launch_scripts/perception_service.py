@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import sys
 import threading
 
@@ -23,8 +22,11 @@ from ipc import endpoints
 from ipc.transport import STALE_AFTER_S
 from launch_scripts.cli import (
     OneLineParser,
+    add_log_level_argument,
+    add_print_endpoints_argument,
     add_security_arguments,
     add_tracker_arguments,
+    configure_logging,
     curve_keys_from_args,
     stop_on_signals,
     tracker_config_from_args,
@@ -40,8 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"endpoint to publish estimates on (default {endpoints.ESTIMATES})")
     g.add_argument("--control", default=endpoints.PERCEPTION_CONTROL,
                    help=f"endpoint to answer control requests on (default {endpoints.PERCEPTION_CONTROL})")
-    g.add_argument("--print-endpoints", action="store_true",
-                   help='print {"frames": ..., "estimates": ..., "control": ...} as one JSON line once bound')
+    add_print_endpoints_argument(g, '{"frames": ..., "estimates": ..., "control": ...}')
     g = p.add_argument_group("behaviour")
     g.add_argument("--no-auto-init", action="store_true",
                    help="wait for an InitialiseRequest instead of initialising on the first frame")
@@ -51,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"seconds of silence after which the frame source counts as gone (default {STALE_AFTER_S:g})")
     g.add_argument("--viewer", action="store_true", help="show frames and meshes live in a Rerun viewer (rerun-sdk)")
     g.add_argument("--viewer-save", metavar="FILE.rrd", help="save the Rerun recording to a file instead")
-    g.add_argument("--verbose", "-v", action="count", default=0, help="-v: info, -vv: debug logging")
+    add_log_level_argument(g)
     add_tracker_arguments(p)  # the same options as the offline command, python -m perception.track
     add_security_arguments(p)
     return p
@@ -59,8 +60,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)]
-    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    configure_logging(args.log_level)
     stop = threading.Event()
     stop_on_signals(stop)
     viewer = "spawn" if args.viewer else args.viewer_save

@@ -124,7 +124,7 @@ def main(argv=None) -> int:
     children = Children(log_dir=None, startup_timeout_s=STARTUP_TIMEOUT_S)  # their messages go to this stderr
     try:
         bound = children.start("frame source", "launch_scripts.publish_frames",
-                               [*args.source, "--endpoint", ports["frames"], "--print-endpoint", *security])
+                               [*args.source, "--endpoint", ports["frames"], "--print-endpoints", *security])
         service_args = ["--frames", bound["frames"], "--estimates", ports["estimates"], "--control", ports["control"],
                         "--print-endpoints", "--preset", args.preset, "--reinit-after-lost", str(args.reinit_after_lost),
                         *security]

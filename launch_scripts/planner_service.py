@@ -4,7 +4,7 @@
         [--kinds corner boundary highest] [--max-estimate-age-s S] [--edge-approach pinch|normal] [--pinch-inset-m M]
         [--T-world-cam 16 numbers] [--workspace-min X Y Z] [--workspace-max X Y Z]
         [--min-score S] [--min-confidence C] [--opening-width-m W] [--outline-window-spacings L]
-        [--corner-max-angle-deg A] [--layer-thickness-m T] [--weight-single-layer W] [--print-endpoint]
+        [--corner-max-angle-deg A] [--layer-thickness-m T] [--weight-single-layer W] [--print-endpoints]
         [--log-level LEVEL] [--curve-keys DIR] [--insecure]
 
 It subscribes to the perception service's MeshEstimate stream (default
@@ -14,7 +14,7 @@ and answers GraspRequest on a REP socket (default ``ipc.endpoints.PLANNER``) wit
 GraspPlanReply, best first, or ErrorReply: ``not_ready`` before the first estimate,
 ``invalid`` for a request it cannot serve, ``protocol`` for one it cannot decode; it
 keeps serving after every bad request. ``--bind tcp://127.0.0.1:*`` picks a free port;
-``--print-endpoint`` prints ``{"planner": ENDPOINT}`` as one JSON line on stdout once
+``--print-endpoints`` prints ``{"planner": ENDPOINT}`` as one JSON line on stdout once
 serving (as ``perception_service --print-endpoints``). SIGINT and SIGTERM stop it
 cleanly (exit status 0). Bad arguments: one line on stderr, exit status 2. Binding an address
 other machines can reach needs --curve-keys (or --insecure).
@@ -38,7 +38,10 @@ from ipc import endpoints
 from ipc.messages import GraspPlan
 from launch_scripts.cli import (
     OneLineParser,
+    add_log_level_argument,
+    add_print_endpoints_argument,
     add_security_arguments,
+    configure_logging,
     curve_keys_from_args,
     finite_float,
     stop_on_signals,
@@ -94,9 +97,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "--weight-single-layer 0 turns this off)")
     p.add_argument("--weight-single-layer", type=finite_float, default=defaults.weight_single_layer,
                    help=f"weight of that term in the score (default {defaults.weight_single_layer:g})")
-    p.add_argument("--print-endpoint", action="store_true",
-                   help='print {"planner": ENDPOINT} as one JSON line on stdout once serving')
-    p.add_argument("--log-level", default="INFO", choices=["DEBUG", "INFO", "WARNING", "ERROR"])
+    add_print_endpoints_argument(p, '{"planner": ENDPOINT}')
+    add_log_level_argument(p, default="INFO")
     add_security_arguments(p)
     return p
 
@@ -171,13 +173,13 @@ def main(argv: list[str] | None = None) -> int:
         curve = curve_keys_from_args(args, [args.bind])
     except ValueError as e:
         parser.error(str(e))
-    logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    configure_logging(args.log_level)
 
     stop = threading.Event()
     stop_on_signals(stop)
 
     def announce(endpoint: str) -> None:
-        if args.print_endpoint:
+        if args.print_endpoints:
             print(json.dumps({"planner": endpoint}), flush=True)
 
     try:

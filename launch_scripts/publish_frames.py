@@ -9,7 +9,7 @@
 
 Options for every source, after the source's name: --endpoint, --pacing
 {realtime,rate,fast}, --rate-hz, --loop, --max-frames, --start-delay-s,
---heartbeat-period-s, --print-endpoint, --verbose, --curve-keys, --insecure (an endpoint other
+--heartbeat-period-s, --print-endpoints, --log-level, --curve-keys, --insecure (an endpoint other
 machines can reach needs one of the last two). Ctrl-C or SIGTERM stops cleanly.
 Bad arguments, a missing SDK or device end with exit status 2 and one line on stderr.
 """
@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import sys
 import threading
 
@@ -26,7 +25,10 @@ from ipc import endpoints
 from ipc.transport import HEARTBEAT_PERIOD_S
 from launch_scripts.cli import (
     OneLineParser,
+    add_log_level_argument,
+    add_print_endpoints_argument,
     add_security_arguments,
+    configure_logging,
     curve_keys_from_args,
     non_negative_float,
     positive_int,
@@ -58,9 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="wait after binding so that waiting subscribers get the first frame (default 0.5)")
     g.add_argument("--heartbeat-period-s", type=float, default=HEARTBEAT_PERIOD_S,
                    help=f"seconds between heartbeats (default {HEARTBEAT_PERIOD_S:g})")
-    g.add_argument("--print-endpoint", action="store_true",
-                   help='print {"frames": ENDPOINT} as one JSON line on stdout once bound')
-    g.add_argument("--verbose", "-v", action="count", default=0, help="-v: info, -vv: debug logging")
+    add_print_endpoints_argument(g, '{"frames": ENDPOINT}')
+    add_log_level_argument(g)
     add_security_arguments(common)
 
     parser = OneLineParser(prog="python -m launch_scripts.publish_frames",
@@ -127,13 +128,12 @@ def open_source(args):
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    level = (logging.WARNING, logging.INFO, logging.DEBUG)[min(args.verbose, 2)]
-    logging.basicConfig(level=level, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    configure_logging(args.log_level)
     stop = threading.Event()
     stop_on_signals(stop)
 
     def bound(endpoint: str) -> None:
-        if args.print_endpoint:
+        if args.print_endpoints:
             print(json.dumps({"frames": endpoint}), flush=True)
 
     try:

@@ -16,12 +16,11 @@ Bad arguments end the program with a one-line message and exit status 2.
 from __future__ import annotations
 
 import argparse
-import logging
 import sys
 import time
 from pathlib import Path
 
-from launch_scripts.cli import OneLineParser, non_negative_int, positive_int
+from launch_scripts.cli import OneLineParser, add_log_level_argument, configure_logging, non_negative_int, positive_int
 from sim.recorder import record_sequence
 from sim.scenes import FPS, SCENES, make_scene
 
@@ -42,6 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--width", type=positive_int, default=640, help="image width (default 640)")
     parser.add_argument("--height", type=positive_int, default=480, help="image height (default 480)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_log_level_argument(parser)
     return parser
 
 
@@ -55,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.out_dir.exists() and (not args.out_dir.is_dir() or any(args.out_dir.iterdir())):
         parser.error(f"{args.out_dir} exists and is not an empty directory")
 
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    configure_logging(args.log_level, "%(levelname)s %(name)s: %(message)s")
     start = time.perf_counter()
     with make_scene(args.scene, seed=args.seed, noise=not args.no_noise, width=args.width, height=args.height,
                     occluders=not args.no_occluders) as scene:

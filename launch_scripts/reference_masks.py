@@ -11,7 +11,6 @@ Bad input ends with exit status 2 and one line naming the problem.
 
 from __future__ import annotations
 
-import logging
 import sys
 from pathlib import Path
 
@@ -19,7 +18,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from launch_scripts.cli import OneLineParser
+from launch_scripts.cli import OneLineParser, add_log_level_argument, configure_logging
 from perception.overlay import outlined_text
 from perception.raster import bounding_box
 from perception.recordings import MASKS_DIR, write_reference_masks
@@ -63,8 +62,9 @@ def main(argv=None) -> int:
     p.add_argument("--review", type=Path, help="write contact sheets of the masks to this folder")
     p.add_argument("--replace", action="store_true", help="overwrite masks the folder already has")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    add_log_level_argument(p)
     args = p.parse_args(argv)
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    configure_logging(args.log_level, "%(levelname)s %(name)s: %(message)s")
     try:
         seq = open_sequence(args.sequence)
         if (seq.path / MASKS_DIR).is_dir() and any((seq.path / MASKS_DIR).iterdir()) and not args.replace:

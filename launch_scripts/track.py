@@ -25,7 +25,12 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from launch_scripts.cli import add_tracker_arguments, tracker_config_from_args
+from launch_scripts.cli import (
+    add_log_level_argument,
+    add_tracker_arguments,
+    configure_logging,
+    tracker_config_from_args,
+)
 from perception.overlay import draw_mesh, ply_bytes
 from perception.sequence import SequenceError, open_sequence, read_mask
 from perception.tracker import MeshTracker, TrackingError
@@ -44,6 +49,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--overlay-dir", type=Path, help="write the mesh drawn over each RGB frame here (PNG)")
     p.add_argument("--ply-dir", type=Path, help="write each frame's mesh here (PLY)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
+    add_log_level_argument(p)
     add_tracker_arguments(p)
     return p
 
@@ -93,7 +99,7 @@ def track_sequence(args) -> dict:
 
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    configure_logging(args.log_level, "%(levelname)s %(name)s: %(message)s")
     try:
         result = track_sequence(args)
     except (SequenceError, TrackingError, ValueError, OSError) as e:

@@ -41,7 +41,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from ipc.messages import GraspPlan
-from launch_scripts.cli import OneLineParser, positive_int
+from launch_scripts.cli import OneLineParser, add_log_level_argument, configure_logging, positive_int
 from launch_scripts.trial_runner.report import markdown, report, write_json
 from launch_scripts.trial_runner.trial import (
     TrialConfig,
@@ -91,6 +91,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"frames observed before planning, the first initialises (default {TrialConfig().observe_frames})")
     p.add_argument("--log-dir", type=Path, metavar="DIR", help="services' logs (default: logs/ beside REPORT.json)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_log_level_argument(p)
     return p
 
 
@@ -230,7 +231,7 @@ def main(argv: list[str] | None = None) -> int:
     seeds = sorted({s for group in args.seeds for s in group})
     if args.json.exists() and args.json.is_dir():
         parser.error(f"--json {args.json} is a directory")
-    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    configure_logging(args.log_level)
     log_dir = args.log_dir if args.log_dir is not None else args.json.parent / "logs"
     scene_options = {k: v for k, v in (("state", args.state), ("cloth_kind", args.cloth)) if v is not None}
     config = TrialConfig(kind=args.kind, observe_frames=args.frames, log_dir=str(log_dir),

@@ -295,10 +295,10 @@ def run_trial(seed: int, config: TrialConfig | None = None,
             frames_pub = stack.enter_context(Publisher(FREE_PORT, source=f"trial seed {seed}"))
             perception = children.start("perception", SERVICES["perception"], [
                 "--frames", frames_pub.endpoint, "--estimates", FREE_PORT, "--control", FREE_PORT, "--print-endpoints",
-                "--no-auto-init", "-v"])
+                "--no-auto-init", "--log-level", "INFO"])
             planner = children.start("planner", SERVICES["planner"], [
                 "--estimates", perception["estimates"], "--frames", frames_pub.endpoint, "--bind", FREE_PORT,
-                "--print-endpoint", "--kinds", config.kind, *arguments_from_config(planner_config(config, scene))])
+                "--print-endpoints", "--kinds", config.kind, *arguments_from_config(planner_config(config, scene))])
             link = _Link(stack, children, frames_pub, perception, planner, config)
             link.configure_tracker(config.tracker)
             _observe_plan_execute(scene, link, config, choose_plan, record)

@@ -99,3 +99,30 @@ def test_field_docs_read_grouped_and_continued_entries():
         """
 
     assert field_docs(Example) == {"a": "weights of two things", "b": "weights of two things", "c": "one thing"}
+
+
+def test_entry_points_share_their_flag_names():
+    from launch_scripts import (
+        convert_recording,
+        perception_service,
+        planner_service,
+        publish_frames,
+        record_scene,
+        track,
+        trials,
+    )
+
+    def options(parser):
+        found = {o for a in parser._actions for o in a.option_strings}
+        for sub in (a for a in parser._actions if a.__class__.__name__ == "_SubParsersAction"):
+            for p in sub.choices.values():
+                found |= {o for a in p._actions for o in a.option_strings}
+        return found
+
+    for module in (convert_recording, perception_service, planner_service, publish_frames, record_scene, track, trials):
+        assert "--log-level" in options(module.build_parser()), module.__name__
+    for module in (perception_service, planner_service, publish_frames):
+        found = options(module.build_parser())
+        assert {"--print-endpoints", "--print-endpoint"} <= found and "-v" not in found, module.__name__
+    args = planner_service.build_parser().parse_args(["--print-endpoint", "--log-level", "WARNING"])
+    assert args.print_endpoints and args.log_level == "WARNING"
