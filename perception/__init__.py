@@ -5,7 +5,8 @@ Public API::
     from perception import MeshTracker, TrackerConfig, rectangle_mesh
 
 The names are loaded on first use, so that ``perception.geometry`` (the geometry every
-package shares) can be imported without the tracker and its dependencies.
+package shares) can be imported without the tracker and its dependencies. Where each
+part of the package stands: docs/architecture.md.
 """
 
 import importlib

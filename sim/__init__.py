@@ -5,7 +5,8 @@
   true cloth in the camera frame.
 - ``sim.physics``: the PyBullet wrapper (``ClothPhysics``, ``Gripper``, ``ClothMaterial``).
 - ``sim.camera``: ``VirtualCamera`` (PyBullet for the rigid scene, ``sim.raster`` for the cloth
-  and for moving rigid bodies, ``sim.solids``: boxes, cylinders, spheres).
+  and for moving rigid bodies, ``sim.solids``: boxes, cylinders, spheres; ``sim.opengl``:
+  PyBullet's renderer matrices made to agree with the camera's K).
 - ``sim.robot_drawing``: ``GripperLook``, a parallel gripper with its wrist and arm to draw.
 - ``sim.noise``: depth/colour sensor noise; ``sim.ground_truth``: the accuracy metric, and
   what an occluder hides.
@@ -14,10 +15,12 @@
 - ``sim.cloth_mesh``, ``sim.textures``: cloth meshes and textures generated in code.
 - ``sim.scene``: the one scene interface; ``sim.frame_source``: a scene as a frame source;
   ``sim.recorder``: a scene written as a sequence folder with ground truth.
-- ``sim.laundry``: the laundry-grasping task (scene, controller policy, judge).
+- ``sim.laundry``: the laundry-grasping task (scene, controller policy, judge);
+  ``sim.grasp_execution``: a GraspPlan executed by a simulated gripper.
 
 PyBullet is imported only when a ``ClothPhysics`` is created, so the pure parts
-(meshes, noise, ground truth) work without it.
+(meshes, noise, ground truth) work without it. How a new scene joins them:
+docs/architecture.md, "Adding a scene".
 """
 
 from sim.camera import Lighting, Render, VirtualCamera
