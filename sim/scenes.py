@@ -156,6 +156,19 @@ def _hang_facing_camera(mesh: ClothMesh, top_centre: np.ndarray) -> np.ndarray:
     return mesh.layout_points(origin, right=np.array([1.0, 0.0, 0.0]), down=np.array([0.0, 0.0, -1.0]))
 
 
+#: The landmarks a rectangle is held by when it hangs, and those of a T-shirt.
+TOP_CORNERS = ("top_left", "top_right")
+SHOULDERS = ("left_shoulder", "right_shoulder")
+
+
+def _hung(mesh: ClothMesh, top_centre, held: tuple) -> tuple[np.ndarray, tuple, list]:
+    """The flat cloth hung facing the camera (``_hang_facing_camera``) from its landmarks
+    ``held``: (vertices (V, 3) metres world, the held vertex ids, the held vertices' positions)."""
+    verts = _hang_facing_camera(mesh, np.asarray(top_centre, dtype=np.float64))
+    grasps = tuple(mesh.landmarks[name] for name in held)
+    return verts, grasps, [verts[g] for g in grasps]
+
+
 def _room(rng: np.random.Generator, wall_y_m: float | None) -> tuple:
     """Floor (top at z = 0) and optionally a wall facing the camera at y = wall_y_m."""
     grey = rng.uniform(0.45, 0.6)
@@ -187,6 +200,18 @@ def _two_hand_script(start: list[np.ndarray], offsets: Callable[[float], list[tu
     return poses
 
 
+def _two_hand_spec(name: str, rng: np.random.Generator, camera: CameraInfo, mesh: ClothMesh, hung: tuple,
+                   offsets: Callable[[float], list[tuple]], texture_rgb: np.ndarray, mass_per_area_kg_m2: float,
+                   boxes: tuple, eye, target) -> SceneSpec:
+    """A paper scene's spec: ``mesh`` hung as ``hung`` (``_hung``'s result) from two hands that
+    follow ``offsets``, seen from about ``eye`` (jittered by ``_camera_pose``, drawn last)."""
+    verts, grasps, start = hung
+    return SceneSpec(name=name, cloth=mesh, cloth_vertices_world=verts, texture_rgb=texture_rgb,
+                     material=ClothMaterial(mass_per_area_kg_m2=mass_per_area_kg_m2), boxes=boxes,
+                     grasp_vertices=grasps, gripper_poses=_two_hand_script(start, offsets), camera=camera,
+                     T_world_cam=_camera_pose(rng, eye=eye, target=target))
+
+
 def poster_bend_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
     """A ~0.60 x 0.45 m poster held at its top corners, bent by moving them together and turning them.
 
@@ -195,28 +220,17 @@ def poster_bend_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
     """
     scale = rng.uniform(0.9, 1.1)
     mesh = rectangle_cloth(0.60 * scale, 0.45 * scale, spacing_m=0.025)
-    verts = _hang_facing_camera(mesh, np.array([0.0, 0.0, 1.35]))
+    verts, grasps, start = _hung(mesh, (0.0, 0.0, 1.35), TOP_CORNERS)
     width = mesh.size_m[0]
-    grasps = (mesh.landmarks["top_left"], mesh.landmarks["top_right"])
-    start = [verts[g] for g in grasps]
 
     def offsets(t: float) -> list:
         b = _ease(t, 4.0)
         inward, forward, yaw = 0.175 * width * b, -0.05 * b, 0.6 * b
         return [((inward, forward, 0.0), yaw), ((-inward, forward, 0.0), -yaw)]
 
-    return SceneSpec(
-        name="poster_bend",
-        cloth=mesh,
-        cloth_vertices_world=verts,
-        texture_rgb=_texture_for(mesh, rng),
-        material=ClothMaterial(mass_per_area_kg_m2=0.2),
-        boxes=_room(rng, wall_y_m=0.8),
-        grasp_vertices=grasps,
-        gripper_poses=_two_hand_script(start, offsets),
-        camera=camera,
-        T_world_cam=_camera_pose(rng, eye=(0.1, -1.1, 1.3), target=(0.0, 0.0, 1.1)),
-    )
+    return _two_hand_spec("poster_bend", rng, camera, mesh, (verts, grasps, start), offsets,
+                          _texture_for(mesh, rng), 0.2, _room(rng, wall_y_m=0.8), eye=(0.1, -1.1, 1.3),
+                          target=(0.0, 0.0, 1.1))
 
 
 def _shirt(rng: np.random.Generator) -> ClothMesh:
@@ -238,9 +252,7 @@ def shirt_chair_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
     hem_below_top = shoulder_to_hem / 3.0
     shoulder_z = backrest_top - hem_below_top + shoulder_to_hem
     shoulder_v = mesh.uv_m[mesh.landmarks["left_shoulder"], 1]
-    verts = _hang_facing_camera(mesh, np.array([0.0, -0.08, shoulder_z + shoulder_v]))
-    grasps = (mesh.landmarks["left_shoulder"], mesh.landmarks["right_shoulder"])
-    start = [verts[g] for g in grasps]
+    verts, grasps, start = _hung(mesh, (0.0, -0.08, shoulder_z + shoulder_v), SHOULDERS)
     wood = (0.45, 0.3, 0.18, 1.0)
     chair = (
         Box((0.23, 0.02, 0.225), (0.0, 0.02, backrest_top - 0.225), wood),  # backrest, front face at y = 0
@@ -252,18 +264,9 @@ def shirt_chair_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
         down = 0.60 * np.clip((t - 1.0) / 1.0, 0.0, 1.0)
         return [((0.0, back, -down), 0.0)] * 2
 
-    return SceneSpec(
-        name="shirt_chair",
-        cloth=mesh,
-        cloth_vertices_world=verts,
-        texture_rgb=_texture_for(mesh, rng),
-        material=ClothMaterial(mass_per_area_kg_m2=0.18),
-        boxes=_room(rng, wall_y_m=1.2) + chair,
-        grasp_vertices=grasps,
-        gripper_poses=_two_hand_script(start, offsets),
-        camera=camera,
-        T_world_cam=_camera_pose(rng, eye=(0.0, -1.3, 1.35), target=(0.0, 0.0, 0.95)),
-    )
+    return _two_hand_spec("shirt_chair", rng, camera, mesh, (verts, grasps, start), offsets,
+                          _texture_for(mesh, rng), 0.18, _room(rng, wall_y_m=1.2) + chair, eye=(0.0, -1.3, 1.35),
+                          target=(0.0, 0.0, 0.95))
 
 
 def shirt_textureless_rotate_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
@@ -274,9 +277,7 @@ def shirt_textureless_rotate_spec(rng: np.random.Generator, camera: CameraInfo) 
     """
     mesh = _shirt(rng)
     shoulder_v = mesh.uv_m[mesh.landmarks["left_shoulder"], 1]
-    verts = _hang_facing_camera(mesh, np.array([0.0, 0.0, 1.45 + shoulder_v]))
-    grasps = (mesh.landmarks["left_shoulder"], mesh.landmarks["right_shoulder"])
-    start = [verts[g] for g in grasps]
+    verts, grasps, start = _hung(mesh, (0.0, 0.0, 1.45 + shoulder_v), SHOULDERS)
     axis = 0.5 * (start[0] + start[1])
 
     def offsets(t: float) -> list:
@@ -286,18 +287,8 @@ def shirt_textureless_rotate_spec(rng: np.random.Generator, camera: CameraInfo) 
         return [(rot @ (p0 - axis) + axis - p0, yaw) for p0 in start]
 
     colour = random_plain_colour(rng)
-    return SceneSpec(
-        name="shirt_textureless_rotate",
-        cloth=mesh,
-        cloth_vertices_world=verts,
-        texture_rgb=plain_texture(colour),
-        material=ClothMaterial(mass_per_area_kg_m2=0.18),
-        boxes=_room(rng, wall_y_m=0.7),
-        grasp_vertices=grasps,
-        gripper_poses=_two_hand_script(start, offsets),
-        camera=camera,
-        T_world_cam=_camera_pose(rng, eye=(0.0, -1.25, 1.3), target=(0.0, 0.0, 1.1)),
-    )
+    return _two_hand_spec("shirt_textureless_rotate", rng, camera, mesh, (verts, grasps, start), offsets,
+                          plain_texture(colour), 0.18, _room(rng, wall_y_m=0.7), eye=(0.0, -1.25, 1.3), target=(0.0, 0.0, 1.1))
 
 
 def towel_sway_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
@@ -308,10 +299,8 @@ def towel_sway_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
     """
     scale = rng.uniform(0.9, 1.1)
     mesh = rectangle_cloth(0.60 * scale, 0.50 * scale, spacing_m=0.025)
-    verts = _hang_facing_camera(mesh, np.array([0.0, 0.0, 1.4]))
+    verts, grasps, start = _hung(mesh, (0.0, 0.0, 1.4), TOP_CORNERS)
     width = mesh.size_m[0]
-    grasps = (mesh.landmarks["top_left"], mesh.landmarks["top_right"])
-    start = [verts[g] for g in grasps]
 
     def offsets(t: float) -> list:
         sway = 0.12 * np.sin(2.0 * np.pi * t / 2.0)
@@ -319,18 +308,8 @@ def towel_sway_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
         inward = 0.2 * width * _ease(t, 4.0)
         return [((sway + inward, depth, 0.0), 0.0), ((sway - inward, depth, 0.0), 0.0)]
 
-    return SceneSpec(
-        name="towel_sway",
-        cloth=mesh,
-        cloth_vertices_world=verts,
-        texture_rgb=_texture_for(mesh, rng),
-        material=ClothMaterial(mass_per_area_kg_m2=0.3),
-        boxes=_room(rng, wall_y_m=None),
-        grasp_vertices=grasps,
-        gripper_poses=_two_hand_script(start, offsets),
-        camera=camera,
-        T_world_cam=_camera_pose(rng, eye=(0.0, -1.3, 1.25), target=(0.0, 0.0, 1.15)),
-    )
+    return _two_hand_spec("towel_sway", rng, camera, mesh, (verts, grasps, start), offsets,
+                          _texture_for(mesh, rng), 0.3, _room(rng, wall_y_m=None), eye=(0.0, -1.3, 1.25), target=(0.0, 0.0, 1.15))
 
 
 # ----------------------------------------------------------------------------- handled scenes
@@ -353,6 +332,12 @@ def _printed(mesh: ClothMesh, rng: np.random.Generator, px_per_m: float = 900.0)
     density = rng.uniform(0.5, 1.5) * width * height / 0.27
     return poster_texture(rng, round(width * px_per_m), round(height * px_per_m),
                           n_shapes=max(20, int(120 * density)), n_words=max(3, int(10 * density)))
+
+
+def _printed_in_a_room(rng: np.random.Generator, mesh: ClothMesh) -> dict:
+    """A hanging handled cloth's print, material and room (drawn in this order), as ``SceneSpec`` fields."""
+    return {"texture_rgb": _printed(mesh, rng), "material": ClothMaterial(mass_per_area_kg_m2=rng.uniform(0.18, 0.3)),
+            "boxes": _room(rng, wall_y_m=rng.uniform(0.6, 1.0))}
 
 
 def _gripper_rotation(approach, closing_hint) -> np.ndarray:
@@ -481,9 +466,7 @@ def occluder_sweep_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSp
     width, height = rng.uniform(0.45, 0.75), rng.uniform(0.35, 0.60)
     mesh = rectangle_cloth(width, height, spacing_m=0.025)
     top_z = rng.uniform(1.30, 1.50)
-    verts = _hang_facing_camera(mesh, np.array([0.0, 0.0, top_z]))
-    grasps = (mesh.landmarks["top_left"], mesh.landmarks["top_right"])
-    start = [verts[g] for g in grasps]
+    verts, grasps, start = _hung(mesh, (0.0, 0.0, top_z), TOP_CORNERS)
     sway_m, sway_period_s = rng.uniform(0.02, 0.08), rng.uniform(2.0, 4.0)
     fore_m, fore_period_s = rng.uniform(0.0, 0.03), rng.uniform(1.5, 3.0)
 
@@ -552,9 +535,7 @@ def occluder_sweep_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSp
         name="occluder_sweep",
         cloth=mesh,
         cloth_vertices_world=verts,
-        texture_rgb=_printed(mesh, rng),
-        material=ClothMaterial(mass_per_area_kg_m2=rng.uniform(0.18, 0.3)),
-        boxes=_room(rng, wall_y_m=rng.uniform(0.6, 1.0)),
+        **_printed_in_a_room(rng, mesh),
         grasp_vertices=grasps,
         gripper_poses=_two_hand_script(start, offsets),
         camera=camera,
@@ -578,8 +559,7 @@ def gripper_corner_move_spec(rng: np.random.Generator, camera: CameraInfo) -> Sc
     width, height = rng.uniform(0.40, 0.65), rng.uniform(0.35, 0.55)
     mesh = rectangle_cloth(width, height, spacing_m=0.025)
     top_z = rng.uniform(1.40, 1.55)
-    verts = _hang_facing_camera(mesh, np.array([0.0, 0.0, top_z]))
-    holders = (mesh.landmarks["top_left"], mesh.landmarks["top_right"])
+    verts, holders, start = _hung(mesh, (0.0, 0.0, top_z), TOP_CORNERS)
     side = float(rng.choice([-1.0, 1.0]))
     corner = mesh.landmarks["bottom_right" if side > 0 else "bottom_left"]
     corner_at = verts[corner]
@@ -600,7 +580,6 @@ def gripper_corner_move_spec(rng: np.random.Generator, camera: CameraInfo) -> Sc
         shoulder_m=corner_at + np.array([-side * rng.uniform(0.0, 0.35), -rng.uniform(0.35, 0.55),
                                          rng.uniform(0.25, 0.55)]),
     )
-    start = [verts[g] for g in holders]
 
     def poses(t: float) -> list:
         return [(p, _yaw_quat(0.0)) for p in start] + [script.pose(t)]
@@ -611,9 +590,7 @@ def gripper_corner_move_spec(rng: np.random.Generator, camera: CameraInfo) -> Sc
         name="gripper_corner_move",
         cloth=mesh,
         cloth_vertices_world=verts,
-        texture_rgb=_printed(mesh, rng),
-        material=ClothMaterial(mass_per_area_kg_m2=rng.uniform(0.18, 0.3)),
-        boxes=_room(rng, wall_y_m=rng.uniform(0.6, 1.0)),
+        **_printed_in_a_room(rng, mesh),
         grasp_vertices=holders,
         gripper_poses=poses,
         camera=camera,
