@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import inspect
+import json
 import logging
 import math
 import os
@@ -40,6 +41,17 @@ def configure_logging(level: str, fmt: str = LOG_FORMAT) -> None:
     logging.basicConfig(level=level, format=fmt)
 
 
+def endpoint_printer(args, name: str):
+    """The ``on_bound`` callback of a service or publisher: with ``--print-endpoints`` it prints
+    ``{name: endpoint}`` as one JSON line on stdout, else nothing."""
+
+    def print_endpoint(endpoint: str) -> None:
+        if args.print_endpoints:
+            print(json.dumps({name: endpoint}), flush=True)
+
+    return print_endpoint
+
+
 def add_print_endpoints_argument(parser, printed: str) -> None:
     """``--print-endpoints``: print the endpoints bound (``printed``, a JSON object's keys) as one
     JSON line on stdout once ready. ``--print-endpoint`` is the same option's earlier name
@@ -48,26 +60,24 @@ def add_print_endpoints_argument(parser, printed: str) -> None:
                         help=f"print {printed} as one JSON line on stdout once ready")
 
 
-def positive_int(text: str) -> int:
-    """argparse type: an integer >= 1."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
+def _integer_from(lo: int, what: str):
+    """An argparse type: an integer >= ``lo``, ``what`` naming it in the error."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {text!r}") from None
+        if value < lo:
+            raise argparse.ArgumentTypeError(f"expected {what}, got {value}")
+        return value
+
+    return parse
 
 
-def non_negative_int(text: str) -> int:
-    """argparse type: an integer >= 0."""
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {value}")
-    return value
+#: argparse types: an integer >= 1, and an integer >= 0.
+positive_int = _integer_from(1, "a positive integer")
+non_negative_int = _integer_from(0, "a non-negative integer")
 
 
 def finite_float(text: str) -> float:

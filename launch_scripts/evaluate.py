@@ -60,6 +60,16 @@ def evaluate_scene(name: str, seed: int, noise: bool, n_frames: int, with_cpd: b
     return out
 
 
+def _by_scene(results: dict, labels: list, key: str) -> list[str]:
+    """A markdown table of ``key`` of every run: a row per scene and noise, a column per label."""
+    lines = ["| scene | noise | " + " | ".join(labels) + " |", "| --- | --- | " + " | ".join("---" for _ in labels) + " |"]
+    for name_noise, r in results.items():
+        name, noise = name_noise.rsplit("/", 1)
+        cells = [("n/a" if r.get(label) is None else f"{r[label][key]:.1f}") for label in labels]
+        lines.append(f"| {name} | {noise} | " + " | ".join(cells) + " |")
+    return lines
+
+
 def markdown(results: dict, args) -> str:
     labels = list(ABLATIONS) + ["realtime", "pycpd"]
     lines = [BEGIN, "", "## Tracking accuracy on simulated scenes", "",
@@ -78,22 +88,11 @@ def markdown(results: dict, args) -> str:
             cells.append("n/a" if s is None else f"{s['mean_mm']:.1f} / {s['p95_mm']:.1f}")
         lines.append(f"| {name} | {noise} | {r['n_vertices']} | " + " | ".join(cells) + " |")
     lines += ["", "Shape error alone (mean mm from each vertex to the nearest point of the true surface, "
-              "blind to sliding along it):", "",
-              "| scene | noise | " + " | ".join(labels) + " |",
-              "| --- | --- | " + " | ".join("---" for _ in labels) + " |"]
-    for key, r in results.items():
-        name, noise = key.rsplit("/", 1)
-        cells = [("n/a" if r.get(label) is None else f"{r[label]['surface_mean_mm']:.1f}") for label in labels]
-        lines.append(f"| {name} | {noise} | " + " | ".join(cells) + " |")
+              "blind to sliding along it):", "", *_by_scene(results, labels, "surface_mean_mm")]
     load = "/".join(f"{x:.2f}" for x in os.getloadavg())
     lines += ["", f"Median tracking time per frame (ms). Load average (1/5/15 min) when the run ended: {load}; "
               "other jobs slow every column alike. `benchmarks/bench_tracker.py` measures speed on its own.", "",
-              "| scene | noise | " + " | ".join(labels) + " |",
-              "| --- | --- | " + " | ".join("---" for _ in labels) + " |"]
-    for key, r in results.items():
-        name, noise = key.rsplit("/", 1)
-        cells = [("n/a" if r.get(label) is None else f"{r[label]['median_ms']:.1f}") for label in labels]
-        lines.append(f"| {name} | {noise} | " + " | ".join(cells) + " |")
+              *_by_scene(results, labels, "median_ms")]
     lines += ["", "Figures (in `docs/figures/`): `error_<scene>_<noise>.png` (error over time), "
               "`views_<scene>_<noise>.png` (input cloud and each ablation from the front, top and at a 45° pan, "
               "as the paper's Fig. 5), `overlay_<scene>_<noise>.png` (mesh over the RGB frames, as Fig. 6).", "", END]

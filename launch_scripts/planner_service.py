@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import logging
 import math
 import sys
@@ -43,6 +42,7 @@ from launch_scripts.cli import (
     add_security_arguments,
     configure_logging,
     curve_keys_from_args,
+    endpoint_printer,
     finite_float,
     stop_on_signals,
 )
@@ -178,13 +178,10 @@ def main(argv: list[str] | None = None) -> int:
     stop = threading.Event()
     stop_on_signals(stop)
 
-    def announce(endpoint: str) -> None:
-        if args.print_endpoints:
-            print(json.dumps({"planner": endpoint}), flush=True)
-
     try:
         run_planner_service(core, estimates_endpoint=args.estimates, planner_endpoint=args.bind,
-                            frames_endpoint=args.frames, stop=stop, on_bound=announce, curve=curve)
+                            frames_endpoint=args.frames, stop=stop, on_bound=endpoint_printer(args, "planner"),
+                            curve=curve)
     except ValueError as e:  # an endpoint that cannot be bound or connected
         print(f"{parser.prog}: error: {e}", file=sys.stderr)
         return 2

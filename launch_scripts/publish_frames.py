@@ -17,7 +17,6 @@ Bad arguments, a missing SDK or device end with exit status 2 and one line on st
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import threading
 
@@ -30,6 +29,7 @@ from launch_scripts.cli import (
     add_security_arguments,
     configure_logging,
     curve_keys_from_args,
+    endpoint_printer,
     non_negative_float,
     positive_int,
     stop_on_signals,
@@ -132,17 +132,13 @@ def main(argv=None) -> int:
     stop = threading.Event()
     stop_on_signals(stop)
 
-    def bound(endpoint: str) -> None:
-        if args.print_endpoints:
-            print(json.dumps({"frames": endpoint}), flush=True)
-
     try:
         curve = curve_keys_from_args(args, [args.endpoint])
         pacing = Pacing(args.pacing or ("fast" if args.source in ("realsense", "kinect") else "realtime"), args.rate_hz)
         with open_source(args) as source:
             run_publisher(source, args.endpoint, pacing=pacing, loop=args.loop, max_frames=args.max_frames,
                           start_delay_s=args.start_delay_s, heartbeat_period_s=args.heartbeat_period_s, stop=stop,
-                          on_bound=bound, curve=curve.server if curve else None)
+                          on_bound=endpoint_printer(args, "frames"), curve=curve.server if curve else None)
     except (SourceError, ValueError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2

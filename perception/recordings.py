@@ -57,7 +57,7 @@ import cv2
 import numpy as np
 
 from ipc.messages import CameraInfo, RGBDFrame
-from perception.sequence import SequenceWriter, open_sequence
+from perception.sequence import SequenceWriter, image_as_read, open_sequence
 
 log = logging.getLogger(__name__)
 
@@ -211,17 +211,7 @@ def _decode_image(data: bytes, where: str, depth: bool) -> np.ndarray:
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise RecordingError(f"{where}: not a readable image")
-    if depth:
-        if img.ndim != 2 or img.dtype != np.uint16:
-            raise RecordingError(f"{where}: expected a 16-bit single-channel image, got {img.dtype} "
-                                 f"with {1 if img.ndim == 2 else img.shape[2]} channel(s)")
-        return img
-    if img.dtype != np.uint8:
-        raise RecordingError(f"{where}: expected an 8-bit colour image, got {img.dtype}")
-    if img.ndim == 2:
-        return np.repeat(img[:, :, None], 3, axis=2)
-    code = cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB
-    return cv2.cvtColor(img, code)
+    return image_as_read(img, where, depth, error=RecordingError)
 
 
 def _check_size(img: np.ndarray, camera: CameraInfo, where: str) -> np.ndarray:

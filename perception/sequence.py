@@ -195,14 +195,21 @@ def _read_image(path: Path, depth: bool, camera: CameraInfo) -> np.ndarray:
     if img.shape[0] != camera.height or img.shape[1] != camera.width:
         raise SequenceError(f"{path}: image is {img.shape[1]}x{img.shape[0]}, but {INTRINSICS_FILE} says "
                             f"{camera.width}x{camera.height}")
+    return image_as_read(img, path, depth)
+
+
+def image_as_read(img: np.ndarray, where, depth: bool, error: type[Exception] = SequenceError) -> np.ndarray:
+    """An image decoded by OpenCV (``cv2.IMREAD_UNCHANGED``) as the sequence holds it: depth
+    (H, W) uint16 as it is; colour (H, W, 3) uint8 RGB (grey repeated, BGR(A) converted).
+    raises ``error`` naming ``where`` for any other kind of image"""
     if depth:
         if img.ndim != 2 or img.dtype != np.uint16:
             channels = 1 if img.ndim == 2 else img.shape[2]
-            raise SequenceError(f"{path}: expected a 16-bit single-channel depth image, got {img.dtype} with "
-                                f"{channels} channel(s)")
+            raise error(f"{where}: expected a 16-bit single-channel depth image, got {img.dtype} with "
+                        f"{channels} channel(s)")
         return img
     if img.dtype != np.uint8:
-        raise SequenceError(f"{path}: expected an 8-bit colour image, got {img.dtype}")
+        raise error(f"{where}: expected an 8-bit colour image, got {img.dtype}")
     if img.ndim == 2:
         return np.repeat(img[:, :, None], 3, axis=2)
     if img.shape[2] == 4:

@@ -13,6 +13,16 @@ import math
 import numpy as np
 
 
+def _finite_floats(name: str, arr: np.ndarray, copy: bool = True) -> np.ndarray:
+    """``arr`` as float64 if its dtype is numeric and its values finite, else ValueError naming it."""
+    if arr.dtype.kind not in "fiu":
+        raise ValueError(f"Expected {name} with a numeric dtype, got {arr.dtype}")
+    arr = arr.astype(np.float64, copy=copy)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"Expected {name} with finite values, got NaN or infinity")
+    return arr
+
+
 def check_positive(name: str, value, allow_zero: bool = False) -> float:
     """``value`` as a finite float > 0 (or >= 0 with ``allow_zero``), else ValueError naming it."""
     value = float(value)
@@ -41,14 +51,9 @@ def check_points(name: str, points, n: int | None = None, dim: int = 3, allow_em
     if arr.ndim != 2 or arr.shape[1] != dim or (n is not None and arr.shape[0] != n):
         want = f"({'N' if n is None else n}, {dim})"
         raise ValueError(f"Expected {name} with shape {want}, got {arr.shape}")
-    if arr.dtype.kind not in "fiu":
-        raise ValueError(f"Expected {name} with a numeric dtype, got {arr.dtype}")
-    arr = arr.astype(np.float64, copy=False)
     if arr.shape[0] == 0 and not allow_empty:
         raise ValueError(f"Expected {name} with at least one row, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"Expected {name} with finite values, got NaN or infinity")
-    return arr
+    return _finite_floats(name, arr, copy=False)
 
 
 def check_ids(name: str, ids, n_vertices: int, ndim: int = 1, allow_empty: bool = False) -> np.ndarray:
@@ -93,11 +98,7 @@ def check_vector(name: str, vector, unit: bool = False, size: int = 3) -> np.nda
     arr = np.asarray(vector)
     if arr.shape != (size,):
         raise ValueError(f"Expected {name} with shape ({size},), got {arr.shape}")
-    if arr.dtype.kind not in "fiu":
-        raise ValueError(f"Expected {name} with a numeric dtype, got {arr.dtype}")
-    arr = arr.astype(np.float64)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"Expected {name} with finite values, got {arr.tolist()}")
+    arr = _finite_floats(name, arr)
     if unit:
         norm = np.linalg.norm(arr)
         if norm < 1e-12:
@@ -115,11 +116,7 @@ def check_transform(name: str, T, tol: float = 1e-6) -> np.ndarray:
     arr = np.asarray(T)
     if arr.shape != (4, 4):
         raise ValueError(f"Expected {name} with shape (4, 4), got {arr.shape}")
-    if arr.dtype.kind not in "fiu":
-        raise ValueError(f"Expected {name} with a numeric dtype, got {arr.dtype}")
-    arr = arr.astype(np.float64)
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"Expected {name} with finite values, got NaN or infinity")
+    arr = _finite_floats(name, arr)
     if not np.allclose(arr[3], [0.0, 0.0, 0.0, 1.0], atol=tol):
         raise ValueError(f"Expected {name} with last row [0, 0, 0, 1], got {arr[3].tolist()}")
     R = arr[:3, :3]
