@@ -17,9 +17,9 @@ that is right scores about 1 on it:
 - ``appearance``: how alike the mesh's material points look now and when the mesh was
   made: their texture (normalised correlation), or on a plain cloth their colour (a mesh
   on the wrong surface sees another texture or colour);
-- ``unstretched``: cloth hardly stretches, so a mesh whose edges are much longer than in
-  the canonical mesh (median over the edges) has been pulled onto something else, such as
-  a surface farther away;
+- ``unstretched``: cloth hardly stretches, so a mesh whose edges are much longer than when
+  it was laid on the object (median over the edges) has been pulled onto something else,
+  such as a surface farther away;
 - ``uncrumpled``: a mesh that cannot follow the cloth (a fold that turns part of it over,
   which a single smooth sheet cannot represent) crushes the edges along the fold; cloth
   bunched finer than the mesh shortens a few edges, but rarely a tenth of them to under
@@ -74,13 +74,14 @@ def _ramp(value: float, good: float) -> float:
     return float(np.clip(value / good, 0.0, 1.0))
 
 
-def assess(vertices: np.ndarray, edges: np.ndarray, rest_length_m: float, visible: np.ndarray,
+def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, visible: np.ndarray,
            depth_m: np.ndarray, object_mask: np.ndarray, K: np.ndarray, tol_m: float, appearance: float,
            leak: float = 0.0) -> Assessment:
     """The Assessment of an estimate.
 
     vertices : (N, 3); visible : (N,) bool, the vertices seen
-    edges : (E, 2) int, the mesh's edges; rest_length_m : their length in the canonical mesh
+    edges : (E, 2) int, the mesh's edges; rest_lengths_m : (E,) float, their lengths when the
+        mesh was laid on the object
     depth_m : (H, W) float32 measured depth (0 or NaN: none); object_mask : (H, W) bool, the
     segmented object (known occluders excluded); K : (3, 3)
     tol_m : depth agreement tolerance, metres
@@ -110,13 +111,13 @@ def assess(vertices: np.ndarray, edges: np.ndarray, rest_length_m: float, visibl
         footprint = np.zeros(small.shape, np.uint8)
         c, r, ok = pixel_index(uv / q, small.shape[1], small.shape[0])
         footprint[r[ok], c[ok]] = 1
-        spacing_px = K[0, 0] * rest_length_m / max(float(np.median(vertices[:, 2])), 1e-6)
+        spacing_px = K[0, 0] * float(np.median(rest_lengths_m)) / max(float(np.median(vertices[:, 2])), 1e-6)
         radius = max(1, int(np.ceil(0.75 * spacing_px / q)))
         footprint = cv2.dilate(footprint, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1,) * 2))
         coverage = (footprint.astype(bool) & small).sum() / area
     if leak > 0.3:
         coverage = 1.0
-    lengths = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1) / rest_length_m
+    lengths = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1) / np.maximum(rest_lengths_m, 1e-9)
     stretch = float(np.median(lengths))
     crushed = float(np.mean(lengths < 0.5))
     return Assessment(depth=_ramp(depth, 0.85), coverage=_ramp(coverage, 0.8), precision=_ramp(precision, 0.85),

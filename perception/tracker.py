@@ -7,11 +7,22 @@ Usage::
     for frame in frames:
         estimate = tracker.track(frame)                      # ipc.MeshEstimate
 
-Each frame: predict the mesh from the previous estimates, segment the object by depth
-around the prediction, match features, then minimise
-``Psi_S + lambda_C Psi_C + lambda_D Psi_D + lambda_B Psi_B`` with the semi-implicit
-solver. Correspondences are re-weighted between solver stages with a shrinking inlier
-radius (as Pilet et al.), so a few wrong matches cannot tear the mesh.
+Each frame:
+
+1. predict the mesh from the previous estimates (constant velocity), and where that does
+   not explain the frame, from the image motion or a global registration
+   (``perception.coarse``, ``perception.registration``);
+2. classify each vertex as visible, hidden behind something nearer, out of view or
+   without depth (``perception.visibility``);
+3. segment the object by depth around the prediction (by colour too where depth runs on
+   into a table), leaving out known occluders (``RGBDFrame.occluder_mask``);
+4. match features, then minimise ``Psi_S + lambda_C Psi_C + lambda_D Psi_D + lambda_B Psi_B``
+   over the visible vertices, with a motion prior ``lambda_M Psi_M`` carrying the hidden
+   ones, by the semi-implicit solver. Correspondences are re-weighted between solver
+   stages with a shrinking inlier radius (as Pilet et al.), so a few wrong matches cannot
+   tear the mesh;
+5. weigh the evidence for the result (``perception.confidence``); a lost tracker looks
+   for the object again by itself.
 
 Pure numerics: frames in, estimates out; no files, sockets or simulators.
 """
@@ -238,6 +249,7 @@ class MeshTracker:
         self._registration: GlobalRegistration | None = None
         self._colour: ColourModel | None = None
         self._good_V = None  # (N, 3) the last estimate that was not lost
+        self._rest_lengths = None  # (E,) edge lengths, metres, of the mesh as laid on the object
         self.lost_streak = 0  # consecutive lost frames
         self.reacquisitions = 0  # times the object was found again after being lost
         self.last_assessment: Assessment | None = None
@@ -357,6 +369,7 @@ class MeshTracker:
         self._registration = GlobalRegistration(resolve_kind("auto"), rng=self._rng)
         self._registration.build(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
         self._good_V = V
+        self._rest_lengths = np.linalg.norm(V[self._edges[:, 0]] - V[self._edges[:, 1]], axis=1)
         assessment = self._assess(V, frame, visible, obs.mask)
         log.info("initialised mesh: %d vertices, %d faces, %d boundary, %d features", mesh.n_vertices,
                  len(mesh.faces), len(mesh.boundary), self._corr.n_model if self._corr else 0)
@@ -677,7 +690,7 @@ class MeshTracker:
         likeness = 1.0
         if compare_appearance and self._appearance is not None:
             likeness = self._appearance.likeness(frame.rgb, V, self.mesh.faces, K, visible)
-        assessment = assess(V, self._edges, self.mesh.spacing_m, visible, frame.depth_m, object_mask,
+        assessment = assess(V, self._edges, self._rest_lengths, visible, frame.depth_m, object_mask,
                             K, self.config.confidence_tol_m, likeness, leak)
         self.last_assessment = assessment
         return assessment

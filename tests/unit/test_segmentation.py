@@ -99,3 +99,14 @@ def test_outline_skips_occluding_contour_and_image_border():
     # a mask touching the image border has no outline along the border
     full = np.ones((H, W), bool)
     assert not outline(full, np.ones((H, W), np.float32)).any()
+
+
+def test_find_object_sees_a_wall_as_background_though_depth_stops_short_of_the_edges():
+    """A registered Kinect image has no depth in its first dozen columns: the wall does not
+    reach the image's edge, and must not be taken for the object."""
+    depth, truth, _ = scene_depth()
+    depth = depth.copy()
+    depth[:, :12] = 0.0
+    depth[:3] = 0.0
+    mask = find_object(depth, K, SegmentationConfig(), np.random.default_rng(0))
+    assert iou(mask, truth) > 0.9
