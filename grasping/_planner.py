@@ -323,6 +323,41 @@ class _Candidates:
     inward: np.ndarray | None = None
 
 
+def _surface_normals(estimate: MeshEstimate) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unit vertex normals of the estimate: (N, 3) by face winding, (N, 3) turned toward
+    the camera, and (N,) bool where a normal exists (not only zero-area faces around)."""
+    V = estimate.vertices
+    normals, has_normal = _unit(vertex_normals(V, estimate.faces, unit=False))
+    # Orient normals toward the camera (the origin of the camera frame): that is
+    # the side the gripper can come from and the side the fingers close onto.
+    toward_cam = np.where(np.sum(normals * -V, axis=1, keepdims=True) < 0, -normals, normals)
+    return normals, toward_cam, has_normal
+
+
+def _outline_candidates(estimate: MeshEstimate, outline: Outline, rows: np.ndarray, angle_rad: np.ndarray,
+                        config: GraspPlannerConfig) -> _Candidates:
+    """Corner or boundary grasps at outline ``rows`` (K,), placed on the estimate.
+
+    The fingertips close ``config.pinch_inset_m`` inside the outline; the approach and
+    closing directions follow ``config.edge_approach``. ``angle_rad`` (K,) is carried
+    into the candidates (the interior angle for corners, pi for boundary points).
+    """
+    V = estimate.vertices
+    normals, toward_cam, has_normal = _surface_normals(estimate)
+    vid = outline.vertex_ids[rows]
+    behind, ahead = outline.chord_points(V, rows)
+    # The outline runs with the cloth on its left about the winding normal, so
+    # winding normal x outline direction points into the cloth, whatever the
+    # cloth's pose and whichever side faces the camera.
+    inward, has_inward = _unit(np.cross(normals[vid], ahead - behind))
+    positions = V[vid] + config.pinch_inset_m * inward
+    if config.edge_approach == "pinch":
+        approach, closing = inward, toward_cam[vid]
+    else:
+        approach, closing = -toward_cam[vid], inward
+    return _Candidates(vid, positions, approach, closing, has_normal[vid] & has_inward, angle_rad, inward)
+
+
 def _candidates(
     estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerConfig, reachable_vertex: np.ndarray | None
 ) -> _Candidates | str:
@@ -331,13 +366,9 @@ def _candidates(
     ``reachable_vertex`` (N,) bool, used by the "highest" kind only: which
     vertices lie inside the workspace.
     """
-    V = estimate.vertices
-    normals, has_normal = _unit(vertex_normals(V, estimate.faces, unit=False))
-    # Orient normals toward the camera (the origin of the camera frame): that is
-    # the side the gripper can come from and the side the fingers close onto.
-    toward_cam = np.where(np.sum(normals * -V, axis=1, keepdims=True) < 0, -normals, normals)
-
     if config.kind == "highest":
+        V = estimate.vertices
+        _, toward_cam, has_normal = _surface_normals(estimate)
         height = V @ config.up_cam
         choices = np.flatnonzero(reachable_vertex)
         if choices.size == 0:
@@ -360,21 +391,11 @@ def _candidates(
                 f"no corners on the canonical outline (sharpest interior angle {sharpest:.0f} deg, "
                 f"limit {np.rad2deg(config.corner_max_angle_rad):.0f} deg)"
             )
+        angle = outline.interior_angle_rad[rows]
     else:
         rows = outline.sample_rows(config.boundary_spacing_m)
-    vid = outline.vertex_ids[rows]
-    behind, ahead = outline.chord_points(V, rows)
-    # The outline runs with the cloth on its left about the winding normal, so
-    # winding normal x outline direction points into the cloth, whatever the
-    # cloth's pose and whichever side faces the camera.
-    inward, has_inward = _unit(np.cross(normals[vid], ahead - behind))
-    positions = V[vid] + config.pinch_inset_m * inward
-    if config.edge_approach == "pinch":
-        approach, closing = inward, toward_cam[vid]
-    else:
-        approach, closing = -toward_cam[vid], inward
-    angle = outline.interior_angle_rad[rows] if config.kind == "corner" else np.full(len(rows), np.pi)
-    return _Candidates(vid, positions, approach, closing, has_normal[vid] & has_inward, angle, inward)
+        angle = np.full(len(rows), np.pi)
+    return _outline_candidates(estimate, outline, rows, angle, config)
 
 
 def _inside_workspace(points_cam: np.ndarray, config: GraspPlannerConfig) -> np.ndarray:
@@ -396,6 +417,37 @@ def _clearance(estimate: MeshEstimate, graph, vid: np.ndarray, config: GraspPlan
         if other.size:
             nearest[k] = np.min(np.linalg.norm(V[other] - V[vid[k]], axis=1))
     return nearest
+
+
+def _clearance_term(nearest_m: np.ndarray, config: GraspPlannerConfig) -> np.ndarray:
+    """(K,) float64 in [0, 1], the clearance term of ``GraspTerms`` from ``_clearance``'s distances (K,) metres."""
+    return np.minimum(1.0, nearest_m / config.clearance_radius_m)
+
+
+def _grasp_plans(estimate: MeshEstimate, vid: np.ndarray, positions: np.ndarray, approach: np.ndarray,
+                 closing: np.ndarray, score: np.ndarray, kind: str, config: GraspPlannerConfig) -> list[GraspPlan]:
+    """GraspPlan messages, in the given order, for candidates (K,) in the camera frame.
+
+    approach, closing : (K, 3) gripper z and closing directions (closing need not be
+    orthogonal to approach: the gripper frame takes its part across the approach)
+    score : (K,) float64 in [0, 1]
+    """
+    R = frames_from_z_and_x(approach, closing)
+    quats = quaternion_xyzw_from_matrix(R)
+    return [
+        GraspPlan(
+            position=positions[k],
+            approach=R[k][:, 2],
+            quat_xyzw=quats[k],
+            opening_width_m=config.opening_width_m,
+            score=float(score[k]),
+            vertex_id=int(vid[k]),
+            kind=kind,
+            frame_id=estimate.frame_id,
+            timestamp_s=estimate.timestamp_s,
+        )
+        for k in range(len(vid))
+    ]
 
 
 def _single_layer(points: np.ndarray, inward: np.ndarray, frame: RGBDFrame,
@@ -448,7 +500,7 @@ def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerCo
     inward = None if found.inward is None else found.inward[keep]
 
     nearest = _clearance(estimate, model.graph, vid, config)
-    clearance = np.minimum(1.0, nearest / config.clearance_radius_m)
+    clearance = _clearance_term(nearest, config)
     confidence = float(estimate.confidence)
     score = config.weight_clearance * clearance + config.weight_confidence * confidence
     total_weight = config.weight_clearance + config.weight_confidence
@@ -476,23 +528,10 @@ def _plan(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerCo
     if not order:
         return none_left(rejected)
 
-    R = frames_from_z_and_x(approach, closing)
-    quats = quaternion_xyzw_from_matrix(R)
-    plans, terms = [], []
+    plans = _grasp_plans(estimate, vid[order], positions[order], approach[order], closing[order], score[order],
+                         config.kind, config)
+    terms = []
     for k in order:
-        plans.append(
-            GraspPlan(
-                position=positions[k],
-                approach=R[k][:, 2],
-                quat_xyzw=quats[k],
-                opening_width_m=config.opening_width_m,
-                score=float(score[k]),
-                vertex_id=int(vid[k]),
-                kind=config.kind,
-                frame_id=estimate.frame_id,
-                timestamp_s=estimate.timestamp_s,
-            )
-        )
         terms.append(
             GraspTerms(
                 visibility=None if visibility is None else float(visibility[k]),
