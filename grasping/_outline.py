@@ -47,10 +47,11 @@ _END_HALF_WIDTH = 0.5
 _APEX_HALF_WIDTH_SPACINGS = 1.0
 # Half-width, in grid spacings, of the arc averaged for ``Outline.middle``, which measures
 # the length of the cloth's edges: wider than the apex's, as it need not keep corners
-# sharp. Measured on the sides of rectangles at 13 angles to the grid and 3 grid phases,
-# spacing 2 cm: the length exceeds the straight distance by at most 0.52 cm (0.14 cm on
-# average), against 1.4 cm (0.45 cm) with the apex's one spacing and 8.7 cm (4.1 cm) along
-# the raw outline (tests/unit/test_grasp_adjacent.py checks the bound).
+# sharp (a straight side's zigzag has a period of two spacings). On the sides of rectangles
+# at 13 angles to the grid and 3 grid phases, spacing 2 cm, the length so measured exceeds
+# the straight distance by at most 0.52 cm (0.14 cm on average), against 8.7 cm (4.1 cm)
+# along the raw outline (benchmarks/bench_adjacent.py; tests/unit/test_grasp_adjacent.py
+# checks a bound).
 _MIDDLE_HALF_WIDTH_SPACINGS = 2.0
 
 

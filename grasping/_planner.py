@@ -630,3 +630,16 @@ class GraspPlanner:
         """Grasp candidates for one estimate, as ``plan_grasps`` with this planner's config."""
         _check_inputs(estimate, frame)
         return _plan(estimate, self._model_for(estimate), self.config, frame)
+
+    def adjacent_corners(self, estimate: MeshEstimate, held_vertex: int, frame: RGBDFrame | None = None,
+                         max_candidates: int = 2):
+        """The corners adjacent to a held point, as ``grasping.adjacent_corners`` with this
+        planner's config and its cached analysis of the canonical mesh.
+
+        Returns an ``AdjacentCornersResult``; raises ValueError as ``adjacent_corners`` does.
+        """
+        # Imported here: grasping._adjacent builds on this module's helpers.
+        from grasping._adjacent import _adjacent_on_model
+
+        _check_inputs(estimate, frame)
+        return _adjacent_on_model(estimate, self._model_for(estimate), self.config, frame, held_vertex, max_candidates)

@@ -2,17 +2,19 @@
 
 Data flow (docs/protocol.md)::
 
-    perception --MeshEstimate (PUB)--> planner service <--GraspRequest (REQ)-- controller
-    frame source --RGBDFrame (PUB)---^  (optional)    --GraspPlanReply | ErrorReply-->
+    perception --MeshEstimate (PUB)--> planner service <--GraspRequest | AdjacentCornersRequest (REQ)-- controller
+    frame source --RGBDFrame (PUB)---^  (optional)    --GraspPlanReply | AdjacentCornersReply | ErrorReply-->
 
 Two layers, as the perception service (``PerceptionCore`` and ``PerceptionService``): a
 socket-free core, and the sockets around it:
 
 - ``PlannerCore`` holds the newest estimate (and the recent frames, for the
   visibility term) and answers a ``GraspRequest`` with a ``GraspPlanReply`` (best
-  first) or an ``ErrorReply``: ``not_ready`` before any estimate has arrived,
-  ``invalid`` when the request asks only for kinds this service does not serve or
-  carries an estimate the planner cannot use. It knows nothing of sockets.
+  first), an ``AdjacentCornersRequest`` with an ``AdjacentCornersReply``, or either
+  with an ``ErrorReply``: ``not_ready`` before any estimate has arrived,
+  ``invalid`` when the request asks only for kinds this service does not serve, names
+  a held vertex off the mesh or its outline, or carries an estimate the planner cannot
+  use. It knows nothing of sockets.
 - ``run_planner_service`` binds and connects the sockets (``ipc.transport``) and
   drives a ``PlannerCore`` until a stop event is set. Malformed requests are
   answered by ``ReplyServer`` itself and never stop the loop.
@@ -32,6 +34,8 @@ from collections import OrderedDict
 
 from grasping._planner import GraspPlanner, GraspPlannerConfig
 from ipc.messages import (
+    AdjacentCornersReply,
+    AdjacentCornersRequest,
     ErrorReply,
     GraspPlan,
     GraspPlanReply,
@@ -41,6 +45,10 @@ from ipc.messages import (
 )
 
 log = logging.getLogger(__name__)
+
+#: The requests the planner's REP socket answers (docs/protocol.md, section 13.4); any other
+#: is answered ``unsupported``.
+REQUESTS = (GraspRequest, AdjacentCornersRequest)
 
 #: Frames kept to find the one an estimate was made from (the tracker lags the camera
 #: by a frame or two; 2 MB each at 640x480).
@@ -62,7 +70,8 @@ class PlannerCore:
     estimate received (``on_estimate``). The visibility term is used when the frame the
     estimate was made from (same ``seq`` and ``timestamp_s``) was received
     (``on_frame``); otherwise the plan goes without it. Candidates of several kinds are
-    merged best first and cut to the request's ``max_candidates``.
+    merged best first and cut to the request's ``max_candidates``. Adjacent corners are
+    answered whatever ``kinds`` holds: they are a request of their own, not a grasp kind.
     """
 
     def __init__(self, config: GraspPlannerConfig | None = None, kinds=GraspPlan.KINDS, max_age_s: float | None = None):
@@ -76,6 +85,9 @@ class PlannerCore:
         self.max_age_s = max_age_s
         # One planner per kind: each caches its analysis of the canonical mesh.
         self._planners = {k: GraspPlanner(dataclasses.replace(config, kind=k)) for k in kinds}
+        # Adjacent corners need the canonical outline, which every GraspPlanner analyses:
+        # share the corner planner's analysis when there is one.
+        self._adjacent = self._planners.get("corner") or GraspPlanner(dataclasses.replace(config, kind="corner"))
         self.latest: MeshEstimate | None = None
         self._latest_at = -math.inf  # time.monotonic() when ``latest`` arrived
         self._frames: OrderedDict = OrderedDict()
@@ -99,27 +111,24 @@ class PlannerCore:
             return None
         return frame
 
-    def handle(self, request: GraspRequest):
-        """GraspPlanReply (candidates best first) or ErrorReply for one request.
+    def handle(self, request: GraspRequest | AdjacentCornersRequest):
+        """The reply to one request: GraspPlanReply (candidates best first) for a
+        GraspRequest, AdjacentCornersReply for an AdjacentCornersRequest, or ErrorReply.
 
-        Raises ValueError (answered ``invalid`` by ``ReplyServer``) for an estimate
-        the planner cannot use.
+        Raises ValueError (answered ``invalid`` by ``ReplyServer``) for an estimate the
+        planner cannot use, or a held vertex off the canonical mesh or its outline.
         """
         self.requests += 1
+        if isinstance(request, AdjacentCornersRequest):
+            return self._handle_adjacent(request)
         rid = request.request_id
         wanted = tuple(k for k in request.kinds if k in self.kinds)
         if not wanted:
             return ErrorReply("invalid", f"this planner serves {', '.join(self.kinds)} grasps, "
                                          f"not {', '.join(request.kinds)}", rid)
-        estimate = request.estimate
-        if estimate is None:
-            if self.latest is None:
-                return ErrorReply("not_ready", "no mesh estimate received yet; retry later", rid)
-            age = time.monotonic() - self._latest_at
-            if self.max_age_s is not None and age > self.max_age_s:
-                return ErrorReply("not_ready", f"the newest mesh estimate arrived {age:.1f} s ago, over the "
-                                               f"{self.max_age_s:g} s limit; retry later", rid)
-            estimate = self.latest
+        estimate = self._estimate_for(request)
+        if isinstance(estimate, ErrorReply):
+            return estimate
         frame = self.frame_for(estimate)
         t0 = time.perf_counter()
         plans = []
@@ -133,6 +142,32 @@ class PlannerCore:
         log.info("request %d: %d candidate(s) on estimate %d (%s) in %.1f ms%s", rid, len(plans), estimate.seq,
                  "+".join(wanted), 1000 * (time.perf_counter() - t0), "" if frame is not None else ", no frame")
         return GraspPlanReply(request_id=rid, candidates=tuple(plans), estimate_seq=estimate.seq)
+
+    def _estimate_for(self, request) -> MeshEstimate | ErrorReply:
+        """The request's own estimate, else the newest one, else ErrorReply ``not_ready``."""
+        if request.estimate is not None:
+            return request.estimate
+        if self.latest is None:
+            return ErrorReply("not_ready", "no mesh estimate received yet; retry later", request.request_id)
+        age = time.monotonic() - self._latest_at
+        if self.max_age_s is not None and age > self.max_age_s:
+            return ErrorReply("not_ready", f"the newest mesh estimate arrived {age:.1f} s ago, over the "
+                                           f"{self.max_age_s:g} s limit; retry later", request.request_id)
+        return self.latest
+
+    def _handle_adjacent(self, request: AdjacentCornersRequest):
+        rid = request.request_id
+        estimate = self._estimate_for(request)
+        if isinstance(estimate, ErrorReply):
+            return estimate
+        frame = self.frame_for(estimate)
+        t0 = time.perf_counter()
+        result = self._adjacent.adjacent_corners(estimate, request.held_vertex, frame, request.max_candidates)
+        log.info("request %d: %d corner(s) adjacent to vertex %d on estimate %d in %.1f ms%s%s", rid,
+                 len(result.candidates), request.held_vertex, estimate.seq, 1000 * (time.perf_counter() - t0),
+                 "" if frame is not None else ", no frame", f": {result.reason}" if not result else "")
+        return AdjacentCornersReply(request_id=rid, estimate_seq=estimate.seq, held_vertex=request.held_vertex,
+                                    held_outline_vertex=result.held_outline_vertex, candidates=result.candidates)
 
 
 def run_planner_service(
@@ -179,14 +214,14 @@ def run_planner_service(
                 if estimate is not None:
                     core.on_estimate(estimate)
 
-            def handle(request: GraspRequest):
+            def handle(request: GraspRequest | AdjacentCornersRequest):
                 drain()
                 return core.handle(request)
 
-            with ReplyServer(planner_endpoint, {GraspRequest: handle}, curve=server) as replies:
-                log.info("planner service: estimates from %s, %sserving %s on %s%s", estimates_endpoint,
-                         f"frames from {frames_endpoint}, " if frames_endpoint else "", "/".join(core.kinds),
-                         replies.endpoint, ", CURVE" if curve is not None else "")
+            with ReplyServer(planner_endpoint, dict.fromkeys(REQUESTS, handle), curve=server) as replies:
+                log.info("planner service: estimates from %s, %sserving %s grasps and adjacent corners on %s%s",
+                         estimates_endpoint, f"frames from {frames_endpoint}, " if frames_endpoint else "",
+                         "/".join(core.kinds), replies.endpoint, ", CURVE" if curve is not None else "")
                 if on_bound is not None:
                     on_bound(replies.endpoint)
                 while not stop.is_set():

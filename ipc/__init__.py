@@ -13,6 +13,9 @@ The wire format is specified in docs/protocol.md.
 from ipc.codec import Limits, ProtocolError, decode, encode
 from ipc.messages import (
     SCHEMA_VERSION,
+    AdjacentCorner,
+    AdjacentCornersReply,
+    AdjacentCornersRequest,
     CameraInfo,
     ErrorReply,
     GraspPlan,
@@ -31,6 +34,9 @@ from ipc.messages import (
 
 __all__ = [
     "SCHEMA_VERSION",
+    "AdjacentCorner",
+    "AdjacentCornersReply",
+    "AdjacentCornersRequest",
     "CameraInfo",
     "ErrorReply",
     "GraspPlan",

@@ -11,7 +11,9 @@ FRAMES             tcp://127.0.0.1:5560      PUB (bind)   RGBDFrame + Heartbeat,
 ESTIMATES          tcp://127.0.0.1:5561      PUB (bind)   MeshEstimate + Heartbeat, from perception
 PERCEPTION_CONTROL tcp://127.0.0.1:5562      REP (bind)   Initialise/Reset/SetParameters/Status
                                                           requests -> StatusReply | ErrorReply
-PLANNER            tcp://127.0.0.1:5563      REP (bind)   GraspRequest -> GraspPlanReply | ErrorReply
+PLANNER            tcp://127.0.0.1:5563      REP (bind)   GraspRequest -> GraspPlanReply | ErrorReply,
+                                                          AdjacentCornersRequest -> AdjacentCornersReply
+                                                          | ErrorReply
 =================  ========================  ===========  ==========================================
 """
 

@@ -20,7 +20,7 @@ import numpy as np
 
 from ipc import wire
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 
 # Wire types shared by several fields.
 _REQUEST_ID = wire.Int(lo=0)  # echoed in the reply
@@ -316,6 +316,14 @@ def _check_parameters(name: str, params, allow_empty: bool) -> dict:
     return out
 
 
+def _check_max_candidates(owner: str, value) -> int:
+    """Return ``value`` as an int in [1, ``GraspRequest.MAX_CANDIDATES``]; raise ValueError naming the field."""
+    top = GraspRequest.MAX_CANDIDATES
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) or not 1 <= value <= top:
+        raise ValueError(f"{owner}.max_candidates: expected an integer in [1, {top}], got {value!r}")
+    return int(value)
+
+
 @dataclass(frozen=True)
 class GraspRequest:
     """Ask the grasp planner for grasp candidates.
@@ -336,10 +344,7 @@ class GraspRequest:
 
     def __post_init__(self):
         object.__setattr__(self, "request_id", _check_request_id("GraspRequest", self.request_id))
-        n = self.max_candidates
-        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or not 1 <= n <= self.MAX_CANDIDATES:
-            raise ValueError(f"GraspRequest.max_candidates: expected an integer in [1, {self.MAX_CANDIDATES}], got {n!r}")
-        object.__setattr__(self, "max_candidates", int(n))
+        object.__setattr__(self, "max_candidates", _check_max_candidates("GraspRequest", self.max_candidates))
         if isinstance(self.kinds, str):
             raise ValueError(f"GraspRequest.kinds: expected a sequence of kinds, got the string {self.kinds!r}")
         kinds = tuple(self.kinds)
@@ -375,6 +380,117 @@ class GraspPlanReply:
             raise ValueError(f"GraspPlanReply.candidates: expected best first (non-increasing scores), got scores {scores}")
         object.__setattr__(self, "candidates", candidates)
         object.__setattr__(self, "estimate_seq", int(self.estimate_seq))
+
+
+@dataclass(frozen=True)
+class AdjacentCorner:
+    """A corner of the cloth's outline next to a held material point, for a second grasp.
+
+    plan : GraspPlan of kind "corner" at the corner on the current estimate (camera frame
+        ``plan.frame_id``); ``plan.vertex_id`` is the corner's vertex of the canonical mesh
+        and ``plan.score`` the candidate's score in [0, 1] (0 when it is out of reach)
+    side : +1 when reached going forward along the outline's order from the held point
+        (the cloth on the left about the face winding normal), -1 going backward
+    material_distance_m : float >= 0, metres, length of the outline between the held
+        point and the corner on the canonical (rest) mesh: the edge the two grasps stretch
+    visible : float in [0, 1], the part of the material around the corner that was seen
+    reachable : True when the grasp lies inside the planner's workspace
+    """
+
+    plan: GraspPlan = wire.field(wire.Nested(GraspPlan))
+    side: int = wire.field(wire.Int(lo=-1, hi=1))
+    material_distance_m: float = wire.field(wire.Float(lo=0.0))
+    visible: float = wire.field(wire.Float(lo=0.0))
+    reachable: bool = wire.field(wire.Bool())
+
+    SIDES = (1, -1)
+
+    def __post_init__(self):
+        if not isinstance(self.plan, GraspPlan):
+            raise ValueError(f"AdjacentCorner.plan: expected GraspPlan, got {type(self.plan).__name__}")
+        if self.plan.kind != "corner":
+            raise ValueError(f"AdjacentCorner.plan: expected a grasp of kind 'corner', got {self.plan.kind!r}")
+        side = self.side
+        if isinstance(side, (bool, np.bool_)) or not isinstance(side, (int, np.integer)) or side not in self.SIDES:
+            raise ValueError(f"AdjacentCorner.side: expected +1 or -1, got {side!r}")
+        object.__setattr__(self, "side", int(side))
+        object.__setattr__(self, "material_distance_m",
+                           _check_number("AdjacentCorner.material_distance_m", self.material_distance_m))
+        object.__setattr__(self, "visible", _check_number("AdjacentCorner.visible", self.visible, hi=1.0))
+        if not isinstance(self.reachable, (bool, np.bool_)):
+            raise ValueError(f"AdjacentCorner.reachable: expected a bool, got {self.reachable!r}")
+        object.__setattr__(self, "reachable", bool(self.reachable))
+
+
+@dataclass(frozen=True)
+class AdjacentCornersRequest:
+    """Ask the grasp planner for the outline corners adjacent to a held material point.
+
+    request_id : int >= 0, echoed in the reply
+    held_vertex : int >= 0, required (keyword-only), vertex of the canonical mesh the robot
+        holds (the ``GraspPlan.vertex_id`` of the grasp it executed)
+    max_candidates : int in [1, 100], most corners wanted in the reply (there are at
+        most two: one on each side of the held point)
+    estimate : MeshEstimate to plan on, or None to plan on the newest estimate the
+        planner has received from the perception service
+    """
+
+    request_id: int = wire.field(_REQUEST_ID, default=0)
+    held_vertex: int = wire.field(wire.Int(lo=0), kw_only=True)  # required: no vertex is a safe default
+    max_candidates: int = wire.field(wire.Int(), default=2)
+    estimate: MeshEstimate | None = wire.field(wire.Optional(wire.Nested(MeshEstimate)), default=None)
+
+    def __post_init__(self):
+        object.__setattr__(self, "request_id", _check_request_id("AdjacentCornersRequest", self.request_id))
+        object.__setattr__(self, "held_vertex", _check_count("AdjacentCornersRequest.held_vertex", self.held_vertex))
+        object.__setattr__(self, "max_candidates", _check_max_candidates("AdjacentCornersRequest", self.max_candidates))
+        if self.estimate is not None and not isinstance(self.estimate, MeshEstimate):
+            raise ValueError(f"AdjacentCornersRequest.estimate: expected MeshEstimate or None, "
+                             f"got {type(self.estimate).__name__}")
+
+
+@dataclass(frozen=True)
+class AdjacentCornersReply:
+    """The grasp planner's answer to an AdjacentCornersRequest.
+
+    request_id : int >= 0, the request's id
+    estimate_seq : ``seq`` of the MeshEstimate planned on
+    held_vertex : the request's ``held_vertex``
+    held_outline_vertex : int, the canonical mesh's outline vertex taken as the held
+        point (``held_vertex`` itself when it lies on the outline, else the outline
+        vertex nearest to it); -1 when the mesh has no outline
+    candidates : tuple of AdjacentCorner, best first (``plan.score`` non-increasing), at
+        most one per side; empty when there is no other corner or no usable estimate
+    """
+
+    request_id: int = wire.field(_REQUEST_ID, default=0)
+    estimate_seq: int = wire.field(wire.Int(), default=0)
+    held_vertex: int = wire.field(wire.Int(lo=0), default=0)
+    held_outline_vertex: int = wire.field(wire.Int(lo=-1), default=-1)
+    candidates: tuple = wire.field(wire.List(wire.Nested(AdjacentCorner)), default=())
+
+    def __post_init__(self):
+        object.__setattr__(self, "request_id", _check_request_id("AdjacentCornersReply", self.request_id))
+        object.__setattr__(self, "estimate_seq", int(self.estimate_seq))
+        object.__setattr__(self, "held_vertex", _check_count("AdjacentCornersReply.held_vertex", self.held_vertex))
+        outline_vertex = self.held_outline_vertex
+        if isinstance(outline_vertex, (bool, np.bool_)) or not isinstance(outline_vertex, (int, np.integer)) \
+                or outline_vertex < -1:
+            raise ValueError(f"AdjacentCornersReply.held_outline_vertex: expected a vertex id >= 0 or -1, "
+                             f"got {outline_vertex!r}")
+        object.__setattr__(self, "held_outline_vertex", int(outline_vertex))
+        candidates = tuple(self.candidates)
+        for i, c in enumerate(candidates):
+            if not isinstance(c, AdjacentCorner):
+                raise ValueError(f"AdjacentCornersReply.candidates[{i}]: expected AdjacentCorner, got {type(c).__name__}")
+        scores = [c.plan.score for c in candidates]
+        if any(a < b for a, b in zip(scores, scores[1:])):
+            raise ValueError(f"AdjacentCornersReply.candidates: expected best first (non-increasing plan scores), "
+                             f"got scores {scores}")
+        sides = [c.side for c in candidates]
+        if len(set(sides)) != len(sides):
+            raise ValueError(f"AdjacentCornersReply.candidates: expected at most one corner per side, got sides {sides}")
+        object.__setattr__(self, "candidates", candidates)
 
 
 @dataclass(frozen=True)
@@ -630,5 +746,6 @@ class Heartbeat:
 
 
 #: Every message that travels, in the order docs/protocol.md lists them.
-MESSAGES = (CameraInfo, RGBDFrame, MeshEstimate, GraspPlan, GraspRequest, GraspPlanReply, InitialiseRequest,
-            OccluderMaskRequest, ResetRequest, SetParametersRequest, StatusRequest, StatusReply, ErrorReply, Heartbeat)
+MESSAGES = (CameraInfo, RGBDFrame, MeshEstimate, GraspPlan, GraspRequest, GraspPlanReply, AdjacentCorner,
+            AdjacentCornersRequest, AdjacentCornersReply, InitialiseRequest, OccluderMaskRequest, ResetRequest,
+            SetParametersRequest, StatusRequest, StatusReply, ErrorReply, Heartbeat)

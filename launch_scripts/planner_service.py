@@ -11,13 +11,15 @@ It subscribes to the perception service's MeshEstimate stream (default
 ``ipc.endpoints.ESTIMATES``), optionally to the frame stream for the visibility and
 single-layer terms,
 and answers GraspRequest on a REP socket (default ``ipc.endpoints.PLANNER``) with
-GraspPlanReply, best first, or ErrorReply: ``not_ready`` before the first estimate,
-``invalid`` for a request it cannot serve, ``protocol`` for one it cannot decode; it
-keeps serving after every bad request. ``--bind tcp://127.0.0.1:*`` picks a free port;
-``--print-endpoints`` prints ``{"planner": ENDPOINT}`` as one JSON line on stdout once
-serving (as ``perception_service --print-endpoints``). SIGINT and SIGTERM stop it
-cleanly (exit status 0). Bad arguments: one line on stderr, exit status 2. Binding an address
-other machines can reach needs --curve-keys (or --insecure).
+GraspPlanReply, best first, and AdjacentCornersRequest (the corners next to a held one,
+whatever ``--kinds`` says) with AdjacentCornersReply, or either with ErrorReply:
+``not_ready`` before the first estimate, ``invalid`` for a request it cannot serve,
+``protocol`` for one it cannot decode; it keeps serving after every bad request.
+``--bind tcp://127.0.0.1:*`` picks a free port; ``--print-endpoints`` prints
+``{"planner": ENDPOINT}`` as one JSON line on stdout once serving (as
+``perception_service --print-endpoints``). SIGINT and SIGTERM stop it cleanly (exit status
+0). Bad arguments: one line on stderr, exit status 2. Binding an address other machines can
+reach needs --curve-keys (or --insecure).
 """
 
 from __future__ import annotations
@@ -65,7 +67,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=_endpoint, default=None,
                    help="RGBDFrame publisher to connect to for the visibility term (default: none)")
     p.add_argument("--kinds", nargs="+", choices=GraspPlan.KINDS, default=list(GraspPlan.KINDS),
-                   help="grasp kinds served (default: all)")
+                   help="grasp kinds a GraspRequest may ask for (default: all); AdjacentCornersRequest is "
+                        "answered whatever the kinds")
     p.add_argument("--max-estimate-age-s", type=finite_float, default=None,
                    help="answer not_ready when the newest estimate is older than this (default: any age)")
     defaults = GraspPlannerConfig()

@@ -1,5 +1,5 @@
 """The grasp planner service as a real process on loopback: not_ready, plans best first,
-bad requests answered while it keeps serving, its command line, a clean stop.
+adjacent corners, bad requests answered while it keeps serving, its command line, a clean stop.
 
 Estimates are a flat 0.4 x 0.3 m rectangle facing the camera 1 m away, built as the
 tracker builds its canonical mesh, so the corners are known. Every wait is bounded.
@@ -19,7 +19,14 @@ import zmq
 
 from grasping.service import PlannerCore
 from ipc.codec import decode
-from ipc.messages import ErrorReply, GraspPlanReply, GraspRequest, MeshEstimate
+from ipc.messages import (
+    AdjacentCornersReply,
+    AdjacentCornersRequest,
+    ErrorReply,
+    GraspPlanReply,
+    GraspRequest,
+    MeshEstimate,
+)
 from ipc.transport import Publisher, RemoteError, RequestClient
 from perception.mesh import rectangle_mesh
 
@@ -147,6 +154,46 @@ def test_bad_requests_are_answered_and_the_service_keeps_serving(service):
         reply = client.request(GraspRequest(request_id=6, kinds=("boundary",), max_candidates=100))
         assert reply.request_id == 6 and len(reply.candidates) > 4
         assert {c.kind for c in reply.candidates} == {"boundary"}
+
+
+def test_adjacent_corners_through_the_sockets_whatever_the_kinds():
+    """A planner serving highest-point grasps only still answers AdjacentCornersRequest: not_ready
+    before any estimate, then the two corners sharing an edge with the held one; a held vertex
+    off the mesh is invalid, and the service keeps serving both requests."""
+    with Publisher(ANY, source="test estimates") as publisher:
+        proc, endpoint = start_planner("--estimates", publisher.endpoint, "--kinds", "highest", "--pinch-inset-m", "0")
+        try:
+            with RequestClient(endpoint, timeout_s=10.0, attempts=1) as client:
+                with pytest.raises(RemoteError) as e:
+                    client.request(AdjacentCornersRequest(request_id=12, held_vertex=0))
+                assert e.value.code == "not_ready" and e.value.reply.request_id == 12
+                assert "no mesh estimate received yet" in e.value.reply.message
+
+                estimate = rectangle_estimate(seq=21)
+                held = int(np.argmin(np.linalg.norm(estimate.vertices - CORNERS_CAM[0], axis=1)))
+                reply = plan_after_publishing(publisher, client, estimate,
+                                              AdjacentCornersRequest(request_id=13, held_vertex=held))
+                assert isinstance(reply, AdjacentCornersReply)
+                assert (reply.request_id, reply.estimate_seq, reply.held_vertex, reply.held_outline_vertex) == \
+                       (13, 21, held, held)
+                assert sorted(c.side for c in reply.candidates) == [-1, 1]
+                positions = np.array([c.plan.position for c in reply.candidates])
+                dist = np.linalg.norm(positions[:, None] - CORNERS_CAM[None], axis=2)
+                # The corners along the two edges at the held corner, never the diagonal one.
+                assert sorted(np.argmin(dist, axis=1)) == [1, 2] and dist.min(axis=1).max() < S
+                assert all(c.reachable and c.plan.kind == "corner" for c in reply.candidates)
+
+                with pytest.raises(RemoteError) as e:
+                    client.request(AdjacentCornersRequest(request_id=14, held_vertex=100_000))
+                assert e.value.code == "invalid" and e.value.reply.request_id == 14
+                assert "held_vertex" in e.value.reply.message and "\n" not in e.value.reply.message
+
+                own = client.request(AdjacentCornersRequest(request_id=15, held_vertex=held, max_candidates=1,
+                                                            estimate=rectangle_estimate(seq=30, shift=(0.1, 0.0, 0.0))))
+                assert own.estimate_seq == 30 and len(own.candidates) == 1
+                assert client.request(GraspRequest(request_id=16, kinds=("highest",))).request_id == 16
+        finally:
+            assert stop(proc) == 0
 
 
 def test_service_core_without_sockets():

@@ -86,7 +86,8 @@ def test_status_reply_nil_measurements_travel_as_nil():
 
 
 def test_round_trip_of_optional_parts_left_out():
-    for msg in [m.GraspRequest(), m.InitialiseRequest(), m.GraspPlanReply(), m.StatusReply(), m.CameraInfo(2, 2, np.eye(3))]:
+    for msg in [m.GraspRequest(), m.InitialiseRequest(), m.GraspPlanReply(), m.StatusReply(), m.CameraInfo(2, 2, np.eye(3)),
+                m.AdjacentCornersRequest(held_vertex=3), m.AdjacentCornersReply()]:
         assert_same(msg, decode(encode(msg)))
 
 
@@ -261,6 +262,25 @@ CASES = [
         lambda f: f["candidates"][1].update(score="high"),
         r"GraspPlanReply\.candidates\[1\]\.score: expected a number, got str",
     ),
+    (m.AdjacentCorner, lambda f: f.update(side=0), r"^AdjacentCorner\.side: expected \+1 or -1, got 0$"),
+    (m.AdjacentCorner, lambda f: f.update(side=2), r"^AdjacentCorner\.side: expected an integer in \[-1, 1\], got 2$"),
+    (m.AdjacentCorner, lambda f: f["plan"].update(kind="boundary"), r"AdjacentCorner\.plan: expected a grasp of kind 'corner'"),
+    (m.AdjacentCorner, lambda f: f.update(visible=1.5), r"AdjacentCorner\.visible: expected a number in \[0, 1\], got 1\.5"),
+    (m.AdjacentCorner, lambda f: f.update(material_distance_m=-1.0), r"AdjacentCorner\.material_distance_m: expected"),
+    (m.AdjacentCorner, lambda f: f.update(reachable=1), r"AdjacentCorner\.reachable: expected a bool, got int"),
+    (m.AdjacentCornersRequest, lambda f: f.pop("held_vertex"),
+     r"^AdjacentCornersRequest: missing required field 'held_vertex'$"),
+    (m.AdjacentCornersRequest, lambda f: f.update(held_vertex=-1),
+     r"AdjacentCornersRequest\.held_vertex: expected an integer in \[0, "),
+    (m.AdjacentCornersRequest, lambda f: f.update(max_candidates=0),
+     r"AdjacentCornersRequest\.max_candidates: expected an integer in \[1, 100\], got 0"),
+    (m.AdjacentCornersReply, lambda f: f["candidates"].reverse(), r"AdjacentCornersReply\.candidates: expected best first"),
+    (m.AdjacentCornersReply, lambda f: f["candidates"][1].update(side=1),
+     r"AdjacentCornersReply\.candidates: expected at most one corner per side"),
+    (m.AdjacentCornersReply, lambda f: f["candidates"][0]["plan"].update(kind="highest"),
+     r"AdjacentCornersReply\.candidates\[0\].*expected a grasp of kind 'corner', got 'highest'"),
+    (m.AdjacentCornersReply, lambda f: f.update(held_outline_vertex=-2),
+     r"AdjacentCornersReply\.held_outline_vertex: expected an integer in \[-1, "),
     (
         m.SetParametersRequest,
         lambda f: f["parameters"].update(x=[1]),
@@ -306,7 +326,7 @@ def test_header_errors():
     frames = encode(EXAMPLES[m.StatusRequest])
     top = header(frames)
     for key, value, match in [
-        ("version", 1, r"^header\.version: unsupported schema version 1; this decoder speaks 3$"),
+        ("version", 1, rf"^header\.version: unsupported schema version 1; this decoder speaks {m.SCHEMA_VERSION}$"),
         ("version", 1.0, r"header\.version: unsupported schema version 1\.0"),
         ("version", "1", r"header\.version: unsupported schema version '1'"),
         ("type", "Pickle", r"^header\.type: unknown message type 'Pickle'$"),

@@ -159,7 +159,10 @@ def test_structured_mutations():
     assert outcomes[False] > 10 * outcomes[True]
 
 
-@pytest.mark.parametrize("version", [0, 1, 2, 4, -1, 2**64 - 1, 3.0, "3", None, [3]])
+V = m.SCHEMA_VERSION
+
+
+@pytest.mark.parametrize("version", [0, 1, V - 1, V + 1, -1, 2**64 - 1, float(V), str(V), None, [V]])
 def test_wrong_versions(version):
     for frames in CORPUS[:: len(CORPUS) // 8]:
         top = msgpack.unpackb(frames[0])

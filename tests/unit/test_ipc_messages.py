@@ -52,6 +52,69 @@ def test_grasp_plan_reply_orders_best_first():
         m.GraspPlanReply(candidates=("corner",))
 
 
+def test_adjacent_corner_checks_its_fields():
+    ex = example_messages()[m.AdjacentCorner]
+    assert (ex.side, ex.material_distance_m, ex.visible, ex.reachable) == (1, 0.1, 1.0, True)
+    plan = ex.plan
+    ok = {"plan": plan, "side": np.int64(-1), "material_distance_m": 0, "visible": np.float32(0.5), "reachable": np.bool_(0)}
+    corner = m.AdjacentCorner(**ok)
+    assert (corner.side, corner.material_distance_m, corner.visible, corner.reachable) == (-1, 0.0, 0.5, False)
+    assert [type(v) for v in (corner.side, corner.material_distance_m, corner.visible, corner.reachable)] == \
+           [int, float, float, bool]
+    boundary = m.GraspPlan(position=plan.position, approach=plan.approach, quat_xyzw=plan.quat_xyzw,
+                           opening_width_m=0.04, score=0.5, vertex_id=1, kind="boundary")
+    for change, match in [
+        ({"plan": boundary}, r"^AdjacentCorner\.plan: expected a grasp of kind 'corner', got 'boundary'$"),
+        ({"plan": "corner"}, r"^AdjacentCorner\.plan: expected GraspPlan, got str$"),
+        ({"side": 0}, r"^AdjacentCorner\.side: expected \+1 or -1, got 0$"),
+        ({"side": True}, r"^AdjacentCorner\.side: expected \+1 or -1, got True$"),
+        ({"side": 1.0}, r"^AdjacentCorner\.side: expected \+1 or -1, got 1\.0$"),
+        ({"material_distance_m": -0.1}, r"^AdjacentCorner\.material_distance_m: expected a number >= 0, got -0\.1$"),
+        ({"material_distance_m": math.inf}, r"AdjacentCorner\.material_distance_m: expected a number >= 0"),
+        ({"visible": 1.5}, r"^AdjacentCorner\.visible: expected a number in \[0, 1\], got 1\.5$"),
+        ({"visible": math.nan}, r"AdjacentCorner\.visible: expected a number in \[0, 1\], got nan"),
+        ({"reachable": 1}, r"^AdjacentCorner\.reachable: expected a bool, got 1$"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            m.AdjacentCorner(**{**ok, **change})
+
+
+def test_adjacent_corners_request_needs_a_held_vertex():
+    r = m.AdjacentCornersRequest(held_vertex=np.int32(7))
+    assert (r.request_id, r.held_vertex, r.max_candidates, r.estimate) == (0, 7, 2, None)
+    assert type(r.held_vertex) is int
+    with pytest.raises(TypeError, match="held_vertex"):
+        m.AdjacentCornersRequest()
+    for kwargs, match in [
+        ({"held_vertex": -1}, r"^AdjacentCornersRequest\.held_vertex: expected a non-negative integer, got -1$"),
+        ({"held_vertex": 2.0}, r"AdjacentCornersRequest\.held_vertex: expected a non-negative integer, got 2\.0"),
+        ({"held_vertex": 1, "max_candidates": 0}, r"^AdjacentCornersRequest\.max_candidates: expected an integer in \[1, 100\]"),
+        ({"held_vertex": 1, "max_candidates": 101}, r"AdjacentCornersRequest\.max_candidates"),
+        ({"held_vertex": 1, "request_id": -2}, r"AdjacentCornersRequest\.request_id"),
+        ({"held_vertex": 1, "estimate": "mesh"}, r"^AdjacentCornersRequest\.estimate: expected MeshEstimate or None, got str$"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            m.AdjacentCornersRequest(**kwargs)
+
+
+def test_adjacent_corners_reply_orders_best_first_one_per_side():
+    ex = example_messages()[m.AdjacentCornersReply]
+    assert [(c.side, c.plan.score) for c in ex.candidates] == [(1, 0.95), (-1, 0.0)]
+    assert m.AdjacentCornersReply().candidates == () and m.AdjacentCornersReply().held_outline_vertex == -1
+    ahead, behind = ex.candidates
+    for kwargs, match in [
+        ({"candidates": (behind, ahead)}, r"AdjacentCornersReply\.candidates: expected best first \(non-increasing plan "
+                                          r"scores\), got scores \[0\.0, 0\.95\]"),
+        ({"candidates": (ahead, ahead)}, r"^AdjacentCornersReply\.candidates: expected at most one corner per side, "
+                                         r"got sides \[1, 1\]$"),
+        ({"candidates": (ahead.plan,)}, r"AdjacentCornersReply\.candidates\[0\]: expected AdjacentCorner, got GraspPlan"),
+        ({"held_outline_vertex": -2}, r"^AdjacentCornersReply\.held_outline_vertex: expected a vertex id >= 0 or -1, got -2$"),
+        ({"held_vertex": -1}, r"AdjacentCornersReply\.held_vertex"),
+    ]:
+        with pytest.raises(ValueError, match=match):
+            m.AdjacentCornersReply(**kwargs)
+
+
 def test_initialise_request_mask():
     assert m.InitialiseRequest().mask is None
     mask = m.InitialiseRequest(mask=np.eye(3, dtype=bool)).mask
