@@ -73,7 +73,7 @@ def polygon_corner_of(estimate: MeshEstimate, vertex_ids, polygon) -> list[int]:
     return [int(k) for k in np.argmin(np.linalg.norm(pts[:, None] - np.asarray(polygon)[None], axis=2), axis=1)]
 
 
-def expected_neighbours(corner_polygon_ids: list[int], n_polygon: int) -> dict[int, set[int]]:
+def expected_neighbours(corner_polygon_ids: list[int]) -> dict[int, set[int]]:
     """Polygon index -> the polygon indices of the previous and next corner along the polygon."""
     order = sorted(corner_polygon_ids)
     return {c: {order[(i - 1) % len(order)], order[(i + 1) % len(order)]} for i, c in enumerate(order)}
@@ -217,7 +217,7 @@ def test_l_shape_neighbours_skip_the_concave_corner():
     corners = GraspPlanner().corners(est)
     ids = polygon_corner_of(est, corners, L_SHAPE + [0.004, 0.006])
     assert sorted(ids) == [0, 1, 2, 4, 5], "test setup: the five convex corners"
-    neighbours = expected_neighbours(ids, len(L_SHAPE))
+    neighbours = expected_neighbours(ids)
     assert neighbours[2] == {1, 4}  # along the outline through the concave corner
     for vertex, k in zip(corners, ids):
         result = adjacent_corners(est, int(vertex))
@@ -246,7 +246,7 @@ def test_tshirt_corners_are_their_outline_neighbours():
     corners = GraspPlanner().corners(est)
     ids = polygon_corner_of(est, corners, outline)
     assert sorted(ids) == [0, 8, 10, 11, 13, 14, 16, 17]
-    neighbours = expected_neighbours(ids, len(outline))
+    neighbours = expected_neighbours(ids)
     assert neighbours[13] == {11, 14} and neighbours[14] == {13, 16}  # the hem, and under the sleeve
     for vertex, k in zip(corners, ids):
         result = adjacent_corners(est, int(vertex))
