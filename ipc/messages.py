@@ -125,6 +125,12 @@ class RGBDFrame:
     occluder_mask : (H, W) bool, True where a known occluder (the robot's gripper or arm,
         a hand) covers the image, or None when nothing is known; integers are taken as
         non-zero. The tracker never binds the object to these pixels.
+    held_vertices : (K,) int32, ids of the tracked mesh's vertices (of ``MeshEstimate.canonical``)
+        that the robot holds in its grippers, or None when it holds nothing (e.g. the
+        ``vertex_id`` of the grasp plan it executed)
+    held_points_m : (K, 3) float64 metres, in this frame's camera frame: where the robot's
+        grippers hold them at this frame's time, from its own kinematics; given with
+        ``held_vertices`` (both or neither). The tracker keeps those vertices there.
     """
 
     rgb: np.ndarray = wire.field(wire.Array(("uint8",), 3))
@@ -133,6 +139,8 @@ class RGBDFrame:
     timestamp_s: float = wire.field(wire.Float(), default=0.0)
     seq: int = wire.field(wire.Int(), default=0)
     occluder_mask: np.ndarray | None = wire.field(wire.Optional(wire.Array(("uint8",), 2)), default=None)
+    held_vertices: np.ndarray | None = wire.field(wire.Optional(wire.Array(("int32", "int64"), 1)), default=None)
+    held_points_m: np.ndarray | None = wire.field(wire.Optional(wire.Array(("float64", "float32"), 2)), default=None)
 
     def __post_init__(self):
         cam = self.camera
@@ -151,6 +159,19 @@ class RGBDFrame:
         if self.occluder_mask is not None:
             mask = _check_mask("RGBDFrame.occluder_mask", self.occluder_mask, (cam.height, cam.width))
             object.__setattr__(self, "occluder_mask", mask)
+        if (self.held_vertices is None) != (self.held_points_m is None):
+            raise ValueError("RGBDFrame.held_vertices and held_points_m: expected both or neither")
+        if self.held_vertices is not None:
+            ids = np.asarray(self.held_vertices)
+            points = np.asarray(self.held_points_m)
+            if ids.ndim != 1 or ids.dtype.kind not in "iu" or (ids.size and ids.min() < 0):
+                raise ValueError(f"RGBDFrame.held_vertices: expected (K,) integer vertex ids >= 0, got shape "
+                                 f"{ids.shape} dtype {ids.dtype}")
+            if points.shape != (ids.size, 3) or not np.all(np.isfinite(points)):
+                raise ValueError(f"RGBDFrame.held_points_m: expected ({ids.size}, 3) finite metres like "
+                                 f"held_vertices, got shape {points.shape}")
+            object.__setattr__(self, "held_vertices", ids.astype(np.int32))
+            object.__setattr__(self, "held_points_m", points.astype(np.float64))
         object.__setattr__(self, "rgb", rgb)
         object.__setattr__(self, "depth_m", depth)
         object.__setattr__(self, "timestamp_s", float(self.timestamp_s))
@@ -500,10 +521,15 @@ class InitialiseRequest:
     request_id : int >= 0, echoed in the reply
     mask : (H, W) uint8, non-zero on the object in that frame (H, W of the frame), or
         None to find the object by depth segmentation. A bool mask is converted.
+    background : RGBDFrame of the empty workspace seen by the same fixed camera, or None.
+        From then on (until the next InitialiseRequest or a reset) only what differs from
+        it can be the object, so that a cloth lifted off a table is not held to the table
+        by its depth. The robot takes it before the cloth is put down, or knows it.
     """
 
     request_id: int = wire.field(_REQUEST_ID, default=0)
     mask: np.ndarray | None = wire.field(wire.Optional(wire.Array(("uint8",), 2)), default=None)
+    background: RGBDFrame | None = wire.field(wire.Optional(wire.Nested(RGBDFrame)), default=None)
 
     def __post_init__(self):
         object.__setattr__(self, "request_id", _check_request_id("InitialiseRequest", self.request_id))

@@ -193,6 +193,83 @@ class BoundaryTerm:
 
 
 @dataclass
+class StretchTerm:
+    """Psi_L = 1/2 sum_(i,j) (||v_i - v_j|| - l_ij)^2 over the mesh edges: cloth barely stretches.
+
+    Not in the paper, whose smoothness term (second differences) does not resist a mesh
+    shrinking evenly: while the features hold it, that costs nothing, but a cloth that
+    turns away from the camera (lifted off a table, hanging) loses its features and its
+    mesh contracts onto the part still seen. Keeping edge lengths makes the mesh fold away
+    instead, its hidden part carried by the motion prior.
+
+    edges : (E, 2) int64 vertex ids; lengths : (E,) float64 metres, rest lengths
+    Gauss-Newton model: each edge's residual linearised along its current direction.
+    """
+
+    edges: np.ndarray
+    lengths: np.ndarray
+    name: str = "stretch"
+
+    def _parts(self, V: np.ndarray):
+        i, j = self.edges[:, 0], self.edges[:, 1]
+        d = V[i] - V[j]
+        n = np.linalg.norm(d, axis=1)
+        u = d / np.maximum(n, 1e-12)[:, None]
+        return i, j, u, n - self.lengths
+
+    def evaluate(self, V: np.ndarray):
+        i, j, u, r = self._parts(V)
+        f = r[:, None] * u
+        G = np.zeros_like(V)
+        np.add.at(G, i, f)
+        np.add.at(G, j, -f)
+        return 0.5 * float(np.sum(r * r)), G
+
+    def gauss_newton(self, V: np.ndarray):
+        i, j, u, _ = self._parts(V)
+
+        def apply(P: np.ndarray) -> np.ndarray:
+            f = np.einsum("ij,ij->i", u, P[i] - P[j])[:, None] * u
+            out = np.zeros_like(P)
+            np.add.at(out, i, f)
+            np.add.at(out, j, -f)
+            return out
+
+        return apply
+
+
+@dataclass
+class HoldTerm:
+    """Psi_H = 1/2 sum_k ||v_{i_k} - h_k||^2: vertices held by the robot, at its grippers.
+
+    Not in the paper. A robot knows where its grippers are (its kinematics) and which
+    vertex of the mesh each one closed on (the grasp it planned): a correspondence as sure
+    as the kinematics, which holds the mesh where the cloth is held while the gripper
+    itself hides that part from the camera.
+
+    ids : (K,) int64 held vertices; points : (K, 3) float64 metres, where they are held
+    """
+
+    ids: np.ndarray
+    points: np.ndarray
+    name: str = "hold"
+
+    def evaluate(self, V: np.ndarray):
+        D = V[self.ids] - self.points
+        G = np.zeros_like(V)
+        np.add.at(G, self.ids, D)
+        return 0.5 * float(np.sum(D * D)), G
+
+    def gauss_newton(self, V: np.ndarray):
+        def apply(P: np.ndarray) -> np.ndarray:
+            out = np.zeros_like(P)
+            np.add.at(out, self.ids, P[self.ids])
+            return out
+
+        return apply
+
+
+@dataclass
 class MotionPriorTerm:
     """Psi_M = 1/2 sum_{(i,j)} ||(v_i - v_j) - (p_i - p_j)||^2 + 1/2 anchor sum_i ||v_i - p_i||^2.
 

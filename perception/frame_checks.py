@@ -42,10 +42,6 @@ MAX_PIXEL_ASPECT = 10.0
 #: Largest magnitude of a distortion coefficient; real lenses stay well below 10.
 MAX_DISTORTION = 100.0
 
-#: Lattice points of the hexagonal grid per square of the spacing (two equilateral triangles).
-_POINTS_PER_SPACING_SQUARED = 2.0 / math.sqrt(3.0)
-
-
 def check_camera(camera: CameraInfo) -> str | None:
     """One line naming what no pinhole camera has in ``camera``, or None if it is plausible."""
     w, h = camera.width, camera.height
@@ -91,17 +87,6 @@ def seen_area_m2(frame: RGBDFrame, mask: np.ndarray | None = None) -> float:
     measured = frame.depth_m > 0
     z = frame.depth_m[measured if mask is None else measured & mask].astype(np.float64)
     return float(np.sum(z * z)) / (frame.camera.fx * frame.camera.fy)
-
-
-def mesh_vertices(area_m2: float, spacing_m: float) -> int:
-    """About how many vertices a hexagonal mesh of ``spacing_m`` has over ``area_m2``."""
-    return math.ceil(area_m2 * _POINTS_PER_SPACING_SQUARED / spacing_m**2)
-
-
-def spacing_for_area(area_m2: float, vertices: int) -> float:
-    """The spacing, metres, of a hexagonal mesh with about ``vertices`` vertices over
-    ``area_m2`` (``mesh_vertices`` inverted); 0 for no area."""
-    return math.sqrt(area_m2 * _POINTS_PER_SPACING_SQUARED / vertices)
 
 
 def spacing_px(frame: RGBDFrame, mask: np.ndarray, spacing_m: float) -> float:

@@ -98,6 +98,21 @@ def object_area_m2(obs: Observation) -> float:
     return float(np.sum(z * z / (obs.K[0, 0] * obs.K[1, 1]) / np.maximum(facing, 0.2)))
 
 
+#: Lattice points of the hexagonal grid per square of the spacing (two equilateral triangles).
+_POINTS_PER_SPACING_SQUARED = 2.0 / np.sqrt(3.0)
+
+
+def mesh_vertices(area_m2: float, spacing_m: float) -> int:
+    """About how many vertices a hexagonal mesh of ``spacing_m`` has over ``area_m2``."""
+    return int(np.ceil(area_m2 * _POINTS_PER_SPACING_SQUARED / spacing_m**2))
+
+
+def spacing_for_area(area_m2: float, vertices: int) -> float:
+    """The spacing, metres, of a hexagonal mesh with about ``vertices`` vertices over
+    ``area_m2`` (``mesh_vertices`` inverted); 0 for no area."""
+    return float(np.sqrt(area_m2 * _POINTS_PER_SPACING_SQUARED / vertices))
+
+
 def spacing_for(obs: Observation, target_vertices: int, min_px: float = 4.0) -> float:
     """The mesh spacing, metres, that gives the object of ``obs`` about ``target_vertices`` vertices.
 
@@ -105,7 +120,7 @@ def spacing_for(obs: Observation, target_vertices: int, min_px: float = 4.0) -> 
     (``object_area_m2``). The spacing is kept at ``min_px`` pixels or more at the object's
     median depth: finer than that, the image has nothing to say about each triangle.
     """
-    spacing = np.sqrt(2.0 * object_area_m2(obs) / (np.sqrt(3.0) * target_vertices))
+    spacing = spacing_for_area(object_area_m2(obs), target_vertices)
     z = obs.depth_m[obs.mask & (obs.depth_m > 0)]
     return float(max(spacing, min_px * float(np.median(z)) / obs.K[0, 0]))
 

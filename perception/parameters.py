@@ -66,6 +66,8 @@ PARAMETER_RANGES = {
     "lambda_d": Range(0.0, 100.0),
     "lambda_b": Range(0.0, 100.0),
     "lambda_m": Range(0.0, 100.0),
+    "lambda_l": Range(0.0, 100.0),
+    "lambda_h": Range(0.0, 1000.0),
     "alpha": Range(1e-3, 1e3),
     "max_iterations": Range(1, 100),
     "cg_iterations": Range(1, 100),

@@ -177,7 +177,7 @@ class PerceptionService:
     # -- control ---------------------------------------------------------------------------
 
     def _on_initialise(self, request: InitialiseRequest) -> StatusReply:
-        self.core.request_initialise(request.mask)
+        self.core.request_initialise(request.mask, request.background)
         return self.status(request.request_id)
 
     def _on_reset(self, request: ResetRequest) -> StatusReply:

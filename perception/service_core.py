@@ -28,14 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ipc.messages import MeshEstimate, RGBDFrame
-from perception.frame_checks import (
-    check_frame,
-    mesh_vertices,
-    object_lattice_bound,
-    seen_area_m2,
-    spacing_for_area,
-    spacing_px,
-)
+from perception.frame_checks import check_frame, object_lattice_bound, seen_area_m2, spacing_px
+from perception.initial_mesh import mesh_vertices, spacing_for_area
 from perception.parameters import LATTICE_BUDGET, MAX_MESH_VERTICES, apply_parameters, check_work, tracker_parameters
 from perception.segmentation import find_object
 from perception.tracker import MeshTracker, TrackerConfig, TrackingError
@@ -85,18 +79,25 @@ class PerceptionCore:
         self._occluders_by_seq: dict[int, np.ndarray] = {}  # seq -> (H, W) bool, for one frame
         self._frame_shape: tuple | None = None  # (H, W) of the last frame received
         self._last_frame: RGBDFrame | None = None
+        self._background: RGBDFrame | None = None  # the empty workspace (InitialiseRequest.background)
         self._mesh_camera = None  # CameraInfo the mesh was initialised on
         self._logged_kinds: set = set()
         self._rng = np.random.default_rng(0)  # depth segmentation's plane fits, for the size check
 
     # -- requests --------------------------------------------------------------------------
 
-    def request_initialise(self, mask: np.ndarray | None) -> None:
+    def request_initialise(self, mask: np.ndarray | None, background: RGBDFrame | None = None) -> None:
         """Build a new mesh on the next usable frame, on ``mask`` ((H, W) uint8, non-zero on
-        the object) or, if None, on the object found by depth segmentation.
-        raises ValueError if the mask's size differs from that of the frames received"""
+        the object) or, if None, on the object found by depth segmentation; ``background``
+        (the empty workspace, or None) holds for this mesh and any the service builds
+        itself after it, until the next request or a reset.
+        raises ValueError if the mask's or the background's size differs from that of the frames received"""
         if mask is not None and self._frame_shape is not None and mask.shape != self._frame_shape:
             raise ValueError(f"InitialiseRequest.mask: expected shape {self._frame_shape} like the frames, got {mask.shape}")
+        if background is not None and self._frame_shape is not None and background.depth_m.shape != self._frame_shape:
+            raise ValueError(f"InitialiseRequest.background: expected shape {self._frame_shape} like the frames, "
+                             f"got {background.depth_m.shape}")
+        self._background = background
         self._pending_mask = mask
         self.state = "initialising"
         self.last_error = ""
@@ -133,6 +134,7 @@ class PerceptionCore:
         """Drop the mesh; stay idle until ``request_initialise``."""
         self.tracker.reset()
         self._pending_mask = None
+        self._background = None
         self._mesh_camera = None
         self.state = "idle"
         self.frames_since_init = 0
@@ -214,7 +216,7 @@ class PerceptionCore:
         mask = self._pending_mask
         try:
             self._check_object_size(frame, mask)
-            estimate = self.tracker.initialise(frame, mask=mask)
+            estimate = self.tracker.initialise(frame, mask=mask, background=self._background)
         except TrackingError as e:
             if mask is not None:
                 # A controller's mask will not fit later frames better: wait for a new request.

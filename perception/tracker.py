@@ -41,10 +41,18 @@ from threadpoolctl import ThreadpoolController
 
 from ipc.messages import MeshEstimate, RGBDFrame
 from perception.appearance import AppearanceModel
+from perception.background import check_background, differs_from_background
 from perception.coarse import MIN_RESPONSE, FrameMemory
 from perception.colour_model import ColourModel
 from perception.confidence import Assessment, assess
-from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, MotionPriorTerm
+from perception.energy import (
+    BoundaryTerm,
+    CorrespondenceTerm,
+    DepthTerm,
+    HoldTerm,
+    MotionPriorTerm,
+    StretchTerm,
+)
 from perception.features import (
     FEATURE_KINDS,
     CombinedCorrespondences,
@@ -129,6 +137,10 @@ class TrackerConfig:
     depth_outlier_m : depth residuals larger than this are ignored (occlusion, edges)
     occlusion_margin_m : a vertex is hidden when the measured surface at its pixel is this much nearer
     lambda_m : weight of the motion prior that carries hidden and unobserved vertices
+    lambda_l : weight of the stretch term that keeps the mesh's edge lengths (0: the paper's
+        energy, whose smoothness lets a mesh shrink)
+    lambda_h : weight of the hold term: vertices the robot holds (``RGBDFrame.held_vertices``)
+        stay at its grippers (``RGBDFrame.held_points_m``)
     coarse_motion : before each frame's minimisation, also consider the last mesh unmoved and
         moved by the image translation measured around it (large motions, dropped frames)
     boundary_gate_m : boundary vertices farther than this from the outline are left alone
@@ -167,6 +179,8 @@ class TrackerConfig:
     depth_outlier_m: float = 0.08
     occlusion_margin_m: float = 0.08
     lambda_m: float = 1.0
+    lambda_l: float = 0.0
+    lambda_h: float = 10.0
     coarse_motion: bool = True
     boundary_gate_m: float = 0.06
     velocity_prediction: float = 0.5
@@ -183,7 +197,8 @@ class TrackerConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a positive number, got {v!r}")
-        for name in ("spacing_m", "lambda_c", "lambda_d", "lambda_b", "lambda_m", "velocity_prediction",
+        for name in ("spacing_m", "lambda_c", "lambda_d", "lambda_b", "lambda_m", "lambda_l", "lambda_h",
+                     "velocity_prediction",
                      "min_predicted_decrease"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
@@ -248,6 +263,8 @@ class MeshTracker:
         self._appearance: AppearanceModel | None = None
         self._registration: GlobalRegistration | None = None
         self._colour: ColourModel | None = None
+        self._background: RGBDFrame | None = None  # the empty workspace, undistorted
+        self._background_given: RGBDFrame | None = None
         self._good_V = None  # (N, 3) the last estimate that was not lost
         self._rest_lengths = None  # (E,) edge lengths, metres, of the mesh as laid on the object
         self.lost_streak = 0  # consecutive lost frames
@@ -288,33 +305,47 @@ class MeshTracker:
                 raise TrackingError(
                     f"frame camera changed: initialised on {self._camera.width}x{self._camera.height}, "
                     f"got {c.width}x{c.height} (re-initialise for a new camera)")
+        held = frame.held_vertices
+        if held is not None and held.size and self.mesh is not None and int(held.max()) >= self.mesh.n_vertices:
+            raise TrackingError(f"RGBDFrame.held_vertices: vertex {int(held.max())} is not in the tracked mesh "
+                                f"of {self.mesh.n_vertices} vertices")
         return frame
 
     # -- initialise ----------------------------------------------------------------------
 
     def initialise(self, frame: RGBDFrame, mask: np.ndarray | None = None,
-                   mesh: CanonicalMesh | None = None) -> MeshEstimate:
+                   mesh: CanonicalMesh | None = None, background: RGBDFrame | None = None) -> MeshEstimate:
         """Lay the canonical mesh over the object in ``frame`` and bind its features.
 
         mask : (H, W) bool or uint8 (non-zero on the object); found by depth segmentation if None
         mesh : an off-line canonical mesh (e.g. ``rectangle_mesh``); built from the mask if None
+        background : the empty workspace seen by the same fixed camera, or None; from then on
+            only what differs from it can be the object (``perception.background``), so a
+            cloth lifted off a table is not held to the table by its depth
         raises TrackingError with a one-line reason when the frame cannot carry a mesh; the
         tracker then keeps the object it was tracking before
         """
         saved = dict(self.__dict__)
         try:
             with _one_blas_thread():
-                return self._initialise(frame, mask, mesh)
+                return self._initialise(frame, mask, mesh, background)
         except Exception:
             self.__dict__.update(saved)
             raise
 
-    def _initialise(self, frame, mask, mesh) -> MeshEstimate:
+    def _initialise(self, frame, mask, mesh, background) -> MeshEstimate:
         t0 = time.perf_counter()
         self.reset()
         frame = self._check_frame(frame)
+        if background is not None:
+            try:
+                check_background(background, frame)
+            except ValueError as e:
+                raise TrackingError(str(e)) from None
         self._undistort = Undistorter(frame.camera)
         frame = self._undistort(frame)
+        self._background_given = background  # as given, for a re-acquisition's new mesh
+        self._background = None if background is None else self._undistort(background)
         cfg = self.config
         h, w = frame.depth_m.shape
         if mask is None:
@@ -401,9 +432,10 @@ class MeshTracker:
         return BoundaryTerm(ids[keep], g0[keep], obs.outline_cam, obs.mask, obs.K, self.config.boundary_gate_m)
 
     def _data_terms(self, obs: Observation, correspondences: CorrespondenceTerm | None,
-                    observed: np.ndarray | None = None, prior: np.ndarray | None = None):
+                    observed: np.ndarray | None = None, prior: np.ndarray | None = None, frame: RGBDFrame | None = None):
         """(weight, term) pairs for one frame. observed : (N,) bool, the vertices the data may
-        pull (all if None); the others are held by the motion prior around ``prior`` (N, 3)."""
+        pull (all if None); the others are held by the motion prior around ``prior`` (N, 3).
+        ``frame``'s held vertices, if any, are kept at the robot's grippers."""
         cfg = self.config
         terms = []
         if correspondences is not None and cfg.use_correspondence and len(correspondences.targets):
@@ -414,6 +446,10 @@ class MeshTracker:
             terms.append((cfg.lambda_b, self._boundary_term(obs, self._g0, observed)))
         if observed is not None and prior is not None and cfg.lambda_m > 0 and not observed.all():
             terms.append((cfg.lambda_m, MotionPriorTerm.around(self._edges, ~observed, prior)))
+        if cfg.lambda_l > 0 and self._rest_lengths is not None:
+            terms.append((cfg.lambda_l, StretchTerm(self._edges, self._rest_lengths)))
+        if frame is not None and frame.held_vertices is not None and frame.held_vertices.size and cfg.lambda_h > 0:
+            terms.append((cfg.lambda_h, HoldTerm(frame.held_vertices.astype(np.int64), frame.held_points_m)))
         return terms
 
     # -- track ---------------------------------------------------------------------------
@@ -496,6 +532,8 @@ class MeshTracker:
         mask = segment.mask
         if occluder is not None:
             mask &= ~occluder
+        if self._background is not None:
+            mask &= differs_from_background(frame, self._background)
         if not mask.any():
             return None
         obs = observe(frame, mask, cfg.depth_window_px, grey=grey, unsearched=segment.unsearched)
@@ -532,6 +570,8 @@ class MeshTracker:
             mask = find_object(frame.depth_m, frame.camera.K, cfg.segmentation, self._rng)
         if frame.occluder_mask is not None:
             mask &= ~frame.occluder_mask
+        if self._background is not None:
+            mask &= differs_from_background(frame, self._background)
         if not mask.any():
             return None
         # A cloth folds, so less of it may show, but it does not grow: a far larger surface
@@ -547,7 +587,7 @@ class MeshTracker:
         saved = dict(self.__dict__)
         counters = (self.reacquisitions + 1, self.coarse_corrections)
         try:
-            estimate = self._initialise(frame, mask, None)
+            estimate = self._initialise(frame, mask, None, self._background_given)
         except TrackingError:
             estimate = None
         if estimate is None or estimate.lost:
@@ -639,6 +679,8 @@ class MeshTracker:
         mask = segment.mask
         if occluder is not None:
             mask &= ~occluder
+        if self._background is not None:
+            mask &= differs_from_background(frame, self._background)
         if not mask.any():
             log.debug("frame %d: object not seen", frame.seq)
             self._V_prev, self._V = self._V, self._V.copy()
@@ -658,7 +700,7 @@ class MeshTracker:
             if has.any():
                 B = barycentric_matrix(fid[has], bary[has], faces, self.mesh.n_vertices)
                 corr = CorrespondenceTerm(B, pts[has], np.ones(int(has.sum())))
-        terms = self._data_terms(obs, corr, observed, V_pred)
+        terms = self._data_terms(obs, corr, observed, V_pred, frame)
         V = V_pred
         stages = cfg.outlier_radii_m if corr is not None else (None,)
         budget = max(1, cfg.max_iterations // len(stages))

@@ -3,8 +3,8 @@
 Depth cannot separate a cloth lying on a table from the table (it is a few millimetres
 thick, under the sensor's noise), so the tracker's depth segmentation finds nothing
 there. A robot that knows its workspace has a picture of it empty; the cloth is what
-differs from it in colour, or lies nearer the camera than the empty surface by more
-than the noise. ``cloth_points`` turns the mask into the cloth's measured 3D points.
+differs from it (``perception.background``). ``cloth_points`` turns the mask into the
+cloth's measured 3D points.
 Pure OpenCV on arrays.
 """
 
@@ -16,34 +16,24 @@ import cv2
 import numpy as np
 
 from ipc.messages import RGBDFrame
+from perception.background import COLOUR_TOL, DEPTH_TOL_M, differs_from_background
 from perception.geometry import backproject
 
 log = logging.getLogger(__name__)
 
 
-def mask_from_reference(frame: RGBDFrame, reference: RGBDFrame, colour_tol: float = 12.0,
-                        depth_tol_m: float = 0.02, min_area_px: int = 200) -> np.ndarray:
+def mask_from_reference(frame: RGBDFrame, reference: RGBDFrame, colour_tol: float = COLOUR_TOL,
+                        depth_tol_m: float = DEPTH_TOL_M, min_area_px: int = 200) -> np.ndarray:
     """(H, W) bool mask of the largest region that differs from the empty reference.
 
     frame, reference : RGBDFrame of the same camera, with and without the cloth
-    colour_tol : Euclidean RGB distance (8-bit levels) of a differing pixel, after a
-        3x3 Gaussian blur; well above the sensor's colour noise (sigma 2 levels per
-        channel), well below the contrast of a pale print on a grey table (a threshold of
-        30 lost whole strips of such prints)
-    depth_tol_m : a pixel nearer than the reference by more than this differs
+    colour_tol, depth_tol_m : what differs (``perception.background.differs_from_background``)
     min_area_px : regions smaller than this are noise; the result is empty if none is larger
     Holes inside the region (dropouts, a print in the table's colour) are filled.
     """
     if frame.rgb.shape != reference.rgb.shape:
         raise ValueError(f"mask_from_reference: frame {frame.rgb.shape} and reference {reference.rgb.shape} differ in size")
-    a = cv2.GaussianBlur(frame.rgb, (3, 3), 0).astype(np.float32)
-    b = cv2.GaussianBlur(reference.rgb, (3, 3), 0).astype(np.float32)
-    differs = np.linalg.norm(a - b, axis=2) > colour_tol
-    d, r = frame.depth_m, reference.depth_m
-    nearer = (d > 0) & (r > 0) & (d < r - depth_tol_m)
-    kernel = np.ones((5, 5), np.uint8)
-    m = cv2.morphologyEx((differs | nearer).astype(np.uint8), cv2.MORPH_OPEN, kernel)
-    m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, kernel)
+    m = differs_from_background(frame, reference, colour_tol, depth_tol_m).astype(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
     if n <= 1 or stats[1:, cv2.CC_STAT_AREA].max() < min_area_px:
         return np.zeros(m.shape, bool)

@@ -435,6 +435,27 @@ def test_a_failed_mask_initialisation_goes_idle_and_says_why(frames):
     assert core.last_error.startswith("frame 0: initialisation failed:")
 
 
+def test_a_background_holds_for_the_service_s_own_re_initialisations_until_a_reset(frames):
+    core = PerceptionCore(TrackerConfig.realtime(), auto_init=False, reinit_after_lost=1)
+    core.handle_frame(frames[0])  # the service now knows the frames' size
+    with pytest.raises(ValueError, match="InitialiseRequest.background: expected shape"):
+        core.request_initialise(None, dataclasses.replace(frames[0], rgb=frames[0].rgb[:10, :10],
+                                                          depth_m=frames[0].depth_m[:10, :10],
+                                                          camera=CameraInfo.from_fov(10, 10, 1.0)))
+    wall = dataclasses.replace(frames[0], rgb=np.full_like(frames[0].rgb, 90),
+                               depth_m=np.full((240, 320), 2.5, np.float32))  # the grey wall alone
+    core.request_initialise(None, wall)
+    assert near_surface(core.handle_frame(frames[1]), seq=1)[0] < 0.006
+    assert core.tracker.last_observation.mask.sum() > 1000
+    core._reinitialise()  # as after a lost streak: the service builds a mesh by itself
+    core.handle_frame(frames[2])
+    assert core.tracker._background_given is wall
+    core.request_reset()
+    core.request_initialise(None)
+    core.handle_frame(frames[3])
+    assert core.tracker._background_given is None
+
+
 def test_viewer_records_frames_and_meshes_or_names_its_extra(frames, tmp_path, monkeypatch):
     core = PerceptionCore(TrackerConfig.realtime())
     est = core.handle_frame(frames[0])

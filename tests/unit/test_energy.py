@@ -3,7 +3,15 @@
 import numpy as np
 import pytest
 
-from perception.energy import BoundaryTerm, CorrespondenceTerm, DepthTerm, MotionPriorTerm, SmoothnessTerm
+from perception.energy import (
+    BoundaryTerm,
+    CorrespondenceTerm,
+    DepthTerm,
+    HoldTerm,
+    MotionPriorTerm,
+    SmoothnessTerm,
+    StretchTerm,
+)
 from perception.geometry import backproject, project
 from perception.mesh import barycentric_matrix, rectangle_mesh
 
@@ -142,6 +150,45 @@ def test_motion_prior_gradient_and_what_it_keeps():
     squeezed = prior.copy()
     squeezed[hidden, 0] = prior[hidden, 0].min() + 0.5 * (prior[hidden, 0] - prior[hidden, 0].min())
     assert term.evaluate(squeezed)[0] > 1e-4  # compressing the hidden part costs
+    H = term.gauss_newton(V)
+    P = rng.normal(size=V.shape)
+    np.testing.assert_allclose(H(P), term.evaluate(V + P)[1] - term.evaluate(V)[1], atol=1e-12)  # exact: quadratic
+
+
+def test_stretch_gradient_and_what_it_resists():
+    rng = np.random.default_rng(7)
+    m, V = mesh_vertices(rng)
+    edges = m.edges()
+    rest = np.linalg.norm(V[edges[:, 0]] - V[edges[:, 1]], axis=1)
+    term = StretchTerm(edges, rest)
+    moved = V + rng.normal(0, 0.004, V.shape)
+    check_gradient(term, moved)
+    # free of cost at rest and under any rigid motion; a uniform shrink costs
+    assert term.evaluate(V)[0] == pytest.approx(0.0, abs=1e-20)
+    c, s = np.cos(0.4), np.sin(0.4)
+    R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+    assert term.evaluate(V @ R.T + [0.1, -0.2, 0.3])[0] == pytest.approx(0.0, abs=1e-18)
+    centre = V.mean(axis=0)
+    shrunk = centre + 0.8 * (V - centre)
+    assert term.evaluate(shrunk)[0] == pytest.approx(0.5 * np.sum((0.2 * rest) ** 2), rel=1e-9)
+    # Gauss-Newton: J^T J P, with J the edge directions: matches the gradient's change for a small step at rest
+    H = term.gauss_newton(V)
+    P = 1e-6 * rng.normal(size=V.shape)
+    change = term.evaluate(V + P)[1] - term.evaluate(V)[1]
+    np.testing.assert_allclose(H(P), change, atol=1e-3 * np.abs(change).max())
+
+
+def test_hold_gradient_and_value():
+    rng = np.random.default_rng(8)
+    m, V = mesh_vertices(rng)
+    ids = np.array([0, 5, 5])
+    points = V[ids] + rng.normal(0, 0.02, (3, 3))
+    term = HoldTerm(ids, points)
+    check_gradient(term, V)
+    e, g = term.evaluate(V)
+    assert e == pytest.approx(0.5 * np.sum((V[ids] - points) ** 2))
+    untouched = np.setdiff1d(np.arange(len(V)), ids)
+    assert not g[untouched].any()
     H = term.gauss_newton(V)
     P = rng.normal(size=V.shape)
     np.testing.assert_allclose(H(P), term.evaluate(V + P)[1] - term.evaluate(V)[1], atol=1e-12)  # exact: quadratic

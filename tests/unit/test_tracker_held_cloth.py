@@ -1,0 +1,124 @@
+"""The tracker on a cloth the robot handles: what it holds (held vertices), its empty
+workspace (a background), and a mesh that keeps its size (the stretch term).
+Rendered textured sheets whose true shape is known."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from ipc.messages import CameraInfo, RGBDFrame
+from perception import MeshTracker, TrackerConfig
+from perception.background import differs_from_background
+from perception.tracker import TrackingError
+from tests.render import frame_of, grid_surface, plane_points, texture
+
+CAM = CameraInfo.from_fov(640, 480, np.deg2rad(45))
+SIZE = (0.5, 0.4)
+UV, FACES = grid_surface(*SIZE, 26, 21)
+TABLE_M = 1.31  # a wall 1 cm behind the sheet: as continuous in depth with it as a table under a cloth
+
+
+@pytest.fixture(scope="module")
+def tex():
+    return texture(np.random.default_rng(11))
+
+
+def sheet_on_table(points, tex, k):
+    return frame_of(points, UV, FACES, tex, CAM, SIZE, t=k / 30, seq=k, noise_m=0.001,
+                    rng=np.random.default_rng(200 + k), background_m=TABLE_M)
+
+
+def empty_table() -> RGBDFrame:
+    rgb = np.full((480, 640, 3), 90, np.uint8)
+    return RGBDFrame(rgb, np.full((480, 640), TABLE_M, np.float32), CAM, 0.0, 0)
+
+
+def hinged(uv: np.ndarray, k: int) -> np.ndarray:
+    """The sheet at frame k: its right half lifted off the table towards the camera about
+    its middle, 8 degrees a frame (a cloth picked up by one side); material lengths kept."""
+    angle = np.radians(8.0 * k)
+    s = uv[:, 0] - SIZE[0] / 2  # across the hinge, metres; > 0 is lifted
+    x = np.where(s > 0, s * np.cos(angle), s)
+    z = np.where(s > 0, -s * np.sin(angle), 0.0)
+    return np.column_stack([x, uv[:, 1] - SIZE[1] / 2, 1.30 + z])
+
+
+def track_lift(tex, background, n=9):
+    """Track the lift; returns the tracker and the mean vertex error (m) at each frame after the first."""
+    tracker = MeshTracker(TrackerConfig(features="klt", use_boundary=False))
+    first = sheet_on_table(hinged(UV, 0), tex, 0)
+    # depth cannot find a sheet on a table: the robot's mask (here, the true one)
+    e0 = tracker.initialise(first, mask=first.depth_m < TABLE_M - 0.005, background=background)
+    material = e0.vertices[:, :2] + np.array(SIZE) / 2  # the mesh was laid on the flat sheet at z = 1.3
+    errors = []
+    for k in range(1, n):
+        e = tracker.track(sheet_on_table(hinged(UV, k), tex, k))
+        errors.append(np.linalg.norm(e.vertices - hinged(material, k), axis=1).mean())
+    return tracker, np.array(errors)
+
+
+def test_differs_from_background_finds_what_is_not_the_empty_workspace(tex):
+    frame = sheet_on_table(hinged(UV, 0), tex, 0)
+    differs = differs_from_background(frame, empty_table())
+    on_sheet = frame.depth_m < TABLE_M - 0.005
+    assert differs[on_sheet].mean() > 0.95  # the printed sheet differs in colour
+    assert differs[~on_sheet].mean() < 0.01  # the table does not
+    with pytest.raises(ValueError, match="differ in size"):
+        differs_from_background(frame, dataclasses.replace(empty_table(), rgb=np.zeros((10, 10, 3), np.uint8),
+                                                           depth_m=np.zeros((10, 10), np.float32),
+                                                           camera=CameraInfo.from_fov(10, 10, 1.0)))
+
+
+def test_with_a_background_only_what_differs_from_it_is_the_object(tex):
+    tracker, errors = track_lift(tex, empty_table())
+    frame = sheet_on_table(hinged(UV, 8), tex, 8)
+    obs = tracker.last_observation.mask
+    assert obs.sum() > 5000
+    assert not (obs & ~differs_from_background(frame, empty_table())).any()  # nothing of the table
+    assert errors.max() < 0.005, errors
+    with pytest.raises(TrackingError, match="background: expected a 640x480 frame"):
+        small = RGBDFrame(np.zeros((10, 10, 3), np.uint8), np.zeros((10, 10), np.float32),
+                          CameraInfo.from_fov(10, 10, 1.0))
+        MeshTracker(TrackerConfig()).initialise(frame, mask=frame.depth_m < TABLE_M - 0.005, background=small)
+
+
+def test_a_held_vertex_follows_the_gripper_where_the_camera_cannot_see_it(tex):
+    """A corner lifted 6 cm towards the camera by a gripper that hides it."""
+    rest = plane_points(UV, np.array([0.0, 0.0, 1.3]), SIZE)
+    tracker = MeshTracker(TrackerConfig(features="klt"))
+    e0 = tracker.initialise(frame_of(rest, UV, FACES, tex, CAM, SIZE))
+    corner = int(np.argmin(np.linalg.norm(e0.vertices - rest[0], axis=1)))
+    d = np.linalg.norm(UV - UV[0], axis=1)
+    bent = rest.copy()
+    bent[:, 2] -= 0.06 * np.clip(1.0 - d / 0.2, 0.0, 1.0) ** 2  # the corner region lifted
+    frame = frame_of(bent, UV, FACES, tex, CAM, SIZE, seq=1)
+    hand = np.zeros((480, 640), bool)
+    u, v = np.rint(CAM.K[:2, :2] @ (bent[0, :2] / bent[0, 2]) + CAM.K[:2, 2]).astype(int)
+    hand[max(0, v - 45):v + 45, max(0, u - 45):u + 45] = True
+    frame = dataclasses.replace(frame, occluder_mask=hand)
+    target = bent[0]
+    held = dataclasses.replace(frame, held_vertices=np.array([corner]), held_points_m=target[None])
+    e_free = _track_once(tex, rest, frame)
+    e_held = tracker.track(held)
+    assert np.linalg.norm(e_held.vertices[corner] - target) < 0.01
+    assert np.linalg.norm(e_free.vertices[corner] - target) > 0.03  # hidden, it stays down
+    assert "hold" in e_held.energies and "hold" not in e_free.energies
+    with pytest.raises(TrackingError, match="held_vertices: vertex"):
+        tracker.track(dataclasses.replace(frame, held_vertices=np.array([10_000]), held_points_m=target[None]))
+
+
+def _track_once(tex, rest, frame):
+    tracker = MeshTracker(TrackerConfig(features="klt"))
+    tracker.initialise(frame_of(rest, UV, FACES, tex, CAM, SIZE))
+    return tracker.track(frame)
+
+
+def test_frames_name_a_half_given_hold():
+    frame = empty_table()
+    with pytest.raises(ValueError, match="both or neither"):
+        dataclasses.replace(frame, held_vertices=np.array([1]))
+    with pytest.raises(ValueError, match="held_points_m: expected \\(1, 3\\)"):
+        dataclasses.replace(frame, held_vertices=np.array([1]), held_points_m=np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="held_vertices: expected"):
+        dataclasses.replace(frame, held_vertices=np.array([-1]), held_points_m=np.zeros((1, 3)))
