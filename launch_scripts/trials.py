@@ -1,7 +1,7 @@
 """Laundry-grasping trials in simulation, end to end through the ZeroMQ services.
 
-    python -m launch_scripts.trials --seeds S [S ...] --json REPORT.json
-        [--kind corner|boundary|highest] [--state STATE] [--cloth KIND] [--workers N]
+    python -m launch_scripts.trials --seeds S [S ...] --json REPORT.json [--task corner|unfold]
+        [--regrasp adjacent|lowest|redetect ...] [--kind corner|boundary|highest] [--state STATE] [--cloth KIND] [--workers N]
         [--engine local|ray] [--pictures DIR] [--markdown SUMMARY.md] [--frames N] [--log-dir DIR] [--quiet]
 
 Each seed is one trial (``launch_scripts.trial_runner.trial.run_trial``): a towel or
@@ -11,7 +11,10 @@ the plan the controller chooses is executed in the simulation and judged by grou
 truth. A seed is an integer or a range START:STOP[:STEP] (Python's). Even seeds are for
 development, odd seeds are kept for evaluation. ``--state`` and ``--cloth`` force the
 initial state (flat, crumpled, folded, held) or the cloth kind (towel, tshirt) of every
-seed; the rest of each scene is still drawn from its seed.
+seed; the rest of each scene is still drawn from its seed. ``--task unfold`` runs the
+unfold task instead (``trial_runner.unfold``: one arm lifts the cloth by a corner while
+every frame is tracked, a second takes an adjacent corner, the edge is stretched), once
+per ``--regrasp`` choice of the second corner, reported side by side.
 
 Trials run in local processes, one per trial, ``--workers`` at a time (default 1; each
 trial also runs two service processes; a trial whose process dies is recorded as
@@ -44,11 +47,15 @@ from ipc.messages import GraspPlan
 from launch_scripts.cli import OneLineParser, add_log_level_argument, configure_logging, positive_int
 from launch_scripts.trial_runner.report import markdown, report, write_json
 from launch_scripts.trial_runner.trial import (
+    TASKS,
+    TRIAL_TRACKER,
+    UNFOLD_TRACKER,
     TrialConfig,
     run_trial,
     scene_record,
     trial_config_dict,
 )
+from launch_scripts.trial_runner.unfold import REGRASPS
 from sim.laundry import CLOTH_KINDS, INITIAL_STATES
 
 log = logging.getLogger("launch_scripts.trials")
@@ -76,6 +83,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seeds", type=_seeds, nargs="+", required=True, metavar="S",
                    help="seeds (integers, or START:STOP[:STEP]); even for development, odd for evaluation")
     p.add_argument("--json", type=Path, required=True, metavar="REPORT.json", help="where to write the report")
+    p.add_argument("--task", choices=TASKS, default="corner",
+                   help="corner: grasp one corner and lift (default); unfold: lift by one corner while tracked, "
+                        "take an adjacent corner with a second gripper and stretch the edge")
+    p.add_argument("--regrasp", choices=REGRASPS, nargs="+", default=["adjacent"],
+                   help="unfold: how the second corner is chosen; several run each seed once per choice "
+                        "(adjacent: the tracked mesh, default; lowest, redetect: baselines)")
     p.add_argument("--kind", "--mode", dest="kind", choices=GraspPlan.KINDS, default="corner",
                    help="grasp kind to request (default corner; --mode is its earlier name, which the results use)")
     p.add_argument("--state", choices=INITIAL_STATES,
@@ -97,8 +110,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _lost(seed: int, config: TrialConfig, failure: str) -> dict:
     """The record of a trial whose process died before it could report."""
-    return {"seed": seed, "kind": config.kind, "success": False, "corner_success": False, "failure": failure,
-            "scene": scene_record(seed, config.scene_options)}
+    record = {"seed": seed, "task": config.task, "kind": config.kind, "success": False, "corner_success": False,
+              "failure": failure, "scene": scene_record(seed, config.scene_options)}
+    if config.task == "unfold":
+        record["regrasp"] = config.regrasp
+    return record
 
 
 def _worker_output_to(path: str) -> None:
@@ -234,12 +250,18 @@ def main(argv: list[str] | None = None) -> int:
     configure_logging(args.log_level)
     log_dir = args.log_dir if args.log_dir is not None else args.json.parent / "logs"
     scene_options = {k: v for k, v in (("state", args.state), ("cloth_kind", args.cloth)) if v is not None}
-    config = TrialConfig(kind=args.kind, observe_frames=args.frames, log_dir=str(log_dir),
-                         pictures_dir=None if args.pictures is None else str(args.pictures),
-                         scene_options=scene_options)
+    if args.task == "unfold" and args.kind != "corner":
+        parser.error("--task unfold grasps corners: --kind must be corner")
+    unfold = args.task == "unfold"
+    configs = [TrialConfig(task=args.task, regrasp=regrasp, kind=args.kind, observe_frames=args.frames,
+                           tracker=UNFOLD_TRACKER if unfold else TRIAL_TRACKER, log_dir=str(log_dir),
+                           pictures_dir=None if args.pictures is None else str(args.pictures),
+                           scene_options=scene_options)
+               for regrasp in (dict.fromkeys(args.regrasp) if unfold else ["adjacent"])]
     command = "python -m launch_scripts.trials " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
 
-    bar = tqdm(total=len(seeds), desc=f"{args.kind} trials", unit="trial", disable=args.quiet)
+    title = "unfold" if unfold else args.kind
+    bar = tqdm(total=len(seeds) * len(configs), desc=f"{title} trials", unit="trial", disable=args.quiet)
     wins = [0]
 
     def progress(record: dict) -> None:
@@ -252,7 +274,7 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     run = _run_ray if args.engine == "ray" else _run_local
     try:
-        records = run(seeds, config, args.workers, progress)
+        records = [record for config in configs for record in run(seeds, config, args.workers, progress)]
     except RuntimeError as e:
         bar.close()
         print(f"{parser.prog}: error: {e}", file=sys.stderr)
@@ -262,7 +284,8 @@ def main(argv: list[str] | None = None) -> int:
         print("interrupted; no report written", file=sys.stderr)
         return 130
     bar.close()
-    settings = {**trial_config_dict(config), "engine": args.engine, "workers": args.workers,
+    settings = {**trial_config_dict(configs[0]), "regrasps": [c.regrasp for c in configs] if unfold else None,
+                "engine": args.engine, "workers": args.workers,
                 "wall_s": round(time.perf_counter() - start, 1)}
     rep = report(records, command, settings)
     write_json(args.json, rep)
@@ -271,13 +294,15 @@ def main(argv: list[str] | None = None) -> int:
         args.markdown.write_text(markdown(rep))
     s = rep["summary"]["success"]
     lo, hi = s["wilson_95"]
-    print(f"{args.kind}: {s['successes']}/{s['n']} trials succeeded ({100 * (s['rate'] or 0):.1f} %, "
+    for name, u in s.get("by_regrasp", {}).items():
+        print(f"unfold, second corner by {name}: {u['success']['successes']}/{u['success']['n']} succeeded")
+    print(f"{title}: {s['successes']}/{s['n']} trials succeeded ({100 * (s['rate'] or 0):.1f} %, "
           f"95 % Wilson interval {100 * lo:.1f}-{100 * hi:.1f} %) in {settings['wall_s']:.0f} s")
     print(f"report: {args.json}")
     if args.markdown is not None:
         print(f"summary: {args.markdown}")
     if args.pictures is not None:
-        print(f"pictures: {args.pictures}/trial_seed<S>.png")
+        print(f"pictures: {args.pictures}/" + ("unfold_seed<S>_<regrasp>.png" if unfold else "trial_seed<S>.png"))
     print(f"logs: {log_dir}")
     could_not_run = rep["summary"]["trials_that_could_not_run"]
     return 1 if could_not_run else 0

@@ -43,6 +43,7 @@ from scipy.spatial.transform import Rotation
 from ipc.messages import GraspPlan
 from perception.geometry import check_transform
 from sim.ground_truth import closest_point_barycentric
+from sim.physics import slerp
 
 log = logging.getLogger(__name__)
 
@@ -229,6 +230,61 @@ class ExecutionResult:
     failure: str = ""
 
 
+def move_grippers(scene, moves, duration_s: float, on_frame: Callable[[], None] | None = None) -> None:
+    """Move grippers to their targets together, one camera frame at a time.
+
+    scene : a scene with ``fps`` and ``step()`` (one frame period of physics)
+    moves : [(gripper (``sim.physics.Gripper``), target position (3,) metres world,
+        target quat_xyzw (4,) or None to keep the orientation)]
+    duration_s : seconds the motion takes (rounded up to whole frames, at least one)
+    on_frame : called after each frame's step, e.g. to render, publish and track it
+
+    Each gripper moves along a straight line with a smooth start and stop (smoothstep:
+    its top speed 1.5 times the mean, no jerk at either end, as a robot's controller
+    ramps its speed), which a cloth hanging from it follows without being flung.
+    """
+    n = max(1, math.ceil(float(duration_s) * scene.fps - 1e-9))
+    starts = [(g.position, g.quat_xyzw) for g, _, _ in moves]
+    targets = [(np.asarray(p, dtype=np.float64), q0 if q is None else np.asarray(q, dtype=np.float64))
+               for (_, p, q), (_, q0) in zip(moves, starts)]
+    for k in range(1, n + 1):
+        t = k / n
+        s = t * t * (3.0 - 2.0 * t)
+        for (gripper, _, _), (p0, q0), (p1, q1) in zip(moves, starts, targets):
+            gripper.move_to(p0 + s * (p1 - p0), slerp(q0, q1, s))
+        scene.step()
+        if on_frame is not None:
+            on_frame()
+
+
+@dataclass(frozen=True)
+class Closing:
+    """What a gripper's fingers closed on.
+
+    held_nodes : (K,) int64 cloth nodes now anchored to the gripper (empty: missed)
+    grasped_uv : (2,) float64 metres, material point held (``grasped_material_point``), None when missed
+    grasp_offset_m : distance from the fingertip centre to that point, metres (inf when missed)
+    """
+
+    held_nodes: np.ndarray
+    grasped_uv: np.ndarray | None
+    grasp_offset_m: float
+
+
+def close_fingers(scene, gripper, pose: GraspPose, fingertip: np.ndarray, config: ExecutionConfig) -> Closing:
+    """Close ``gripper`` at ``fingertip`` (3,) world metres: anchor the cloth in its jaw (``jaw_faces``)."""
+    points = scene.physics.cloth_vertices()
+    faces = np.asarray(scene.faces, dtype=np.int64)
+    held_faces = faces[jaw_faces(points, faces, fingertip, pose, config)]
+    held = np.unique(held_faces)
+    if held.size == 0:
+        log.info("missed: no cloth node between the fingers at %s", np.round(fingertip, 3).tolist())
+        return Closing(held, None, math.inf)
+    uv, offset = grasped_material_point(points, held_faces, scene.uv_m, fingertip)
+    gripper.close_on(held)
+    return Closing(held, uv, offset)
+
+
 def execute_grasp(scene, plan: GraspPlan, config: ExecutionConfig | None = None,
                   on_phase: Callable[[str], None] | None = None) -> ExecutionResult:
     """Execute ``plan`` in a running scene and report what the gripper holds.
@@ -256,20 +312,15 @@ def execute_grasp(scene, plan: GraspPlan, config: ExecutionConfig | None = None,
     travel = float(np.linalg.norm(fingertip - gripper.position))
     physics.advance(travel / config.approach_speed_m_s)
 
-    points = physics.cloth_vertices()
-    faces = np.asarray(scene.faces, dtype=np.int64)
-    held_faces = faces[jaw_faces(points, faces, fingertip, pose, config)]
-    held = np.unique(held_faces)
+    closing = close_fingers(scene, gripper, pose, fingertip, config)
+    held, uv, offset = closing.held_nodes, closing.grasped_uv, closing.grasp_offset_m
     if held.size == 0:
-        log.info("missed: no cloth node between the fingers at %s", np.round(fingertip, 3).tolist())
         if on_phase is not None:
             on_phase("closed")
         return ExecutionResult(pose=pose, fingertip_world=fingertip, held_nodes=held, grasped_uv=None,
                                grasp_offset_m=math.inf, lifted_clear=False,
                                lowest_clearance_m=float(scene.clearance_above_support().min()),
                                failure="missed: no cloth between the fingers")
-    uv, offset = grasped_material_point(points, held_faces, scene.uv_m, fingertip)
-    gripper.close_on(held)
     if on_phase is not None:
         on_phase("closed")
     scene.release_holder()

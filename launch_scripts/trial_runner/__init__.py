@@ -2,6 +2,8 @@
 
 - ``trial``: ``run_trial(seed, TrialConfig)``, the one trial function (pool, Ray, tests):
   it starts the services, streams the scene's frames to them and records the outcome.
+- ``unfold``: the unfold task (``TrialConfig(task="unfold")``): the cloth tracked while one
+  arm lifts it by a corner, a second arm taking an adjacent corner, the edge stretched.
 - ``report``: REPORT.json and the markdown summary, with Wilson intervals.
 
 The task itself (scene, controller policy, judge) is ``sim.laundry``'s. The command line

@@ -59,6 +59,7 @@ from sim.laundry.controller import View, default_controller
 from sim.laundry.judge import judge
 from sim.laundry.pictures import caption, draw_plan, draw_point, save_png, strip
 from sim.laundry.segment import mask_from_reference
+from sim.laundry.unfold import UnfoldConfig
 
 log = logging.getLogger(__name__)
 
@@ -77,18 +78,34 @@ FREE_PORT = "tcp://127.0.0.1:*"
 #:   matches drag the mesh 8-20 mm in four frames; KLT's tracked points drift 1-3 mm, and
 #:   on printed cloth both hold it within a millimetre.
 TRIAL_TRACKER = TrackerConfig(spacing_m=0.015, use_boundary=False, features="klt")
+#: The tracker in unfold trials: the trials' tracker, never re-acquiring on its own. A
+#: re-acquired plain cloth gets a new mesh laid over what is seen then, and with it new
+#: material coordinates: the held corner's neighbours along the outline would be lost.
+#: lambda_l 5: edge lengths kept, so that the mesh folds as the lifted cloth turns away
+#:   from the camera instead of shrinking onto what is still seen (on even seed 2, the
+#:   tracking error over the lift fell from 85 to 67 mm and while hanging from 164 to 135 mm).
+UNFOLD_TRACKER = dataclasses.replace(TRIAL_TRACKER, reacquire_every=0, lambda_l=5.0)
 #: The planner in trials: no inset, since the canonical corner vertex is already inside
 #: the cloth by up to a grid spacing (the inset would add a centimetre of error). Each
 #: trial adds its scene's camera pose and the robot's workspace (``planner_config``).
 TRIAL_PLANNER = GraspPlannerConfig(pinch_inset_m=0.0)
 #: The services a trial starts, as modules run with ``python -m``.
 SERVICES = {"perception": "launch_scripts.perception_service", "planner": "launch_scripts.planner_service"}
+#: The trial tasks: grasp one corner and lift (``corner``), or unfold by two adjacent
+#: corners, tracking the cloth through the lift (``unfold``, ``trial_runner.unfold``).
+TASKS = ("corner", "unfold")
 
 
 @dataclass(frozen=True)
 class TrialConfig:
     """Settings of a trial (seconds, metres).
 
+    task : ``TASKS``: "corner" (default: one grasp of ``kind``, lifted and judged) or
+        "unfold" (two adjacent corners, the edge between them stretched; ``kind`` must be
+        "corner")
+    regrasp : how an unfold trial chooses its second corner (``trial_runner.unfold.REGRASPS``):
+        "adjacent" (default, the tracked mesh's outline), "lowest" or "redetect" (baselines)
+    unfold : UnfoldConfig, the unfolding robot's motions
     kind : grasp kind requested (``GraspPlan.KINDS``): "corner" (default), "boundary" or "highest"
     observe_frames : frames shown to the perception service before planning: the first
         initialises the tracker, the others are tracked (1/30 s apart in the simulation)
@@ -108,6 +125,9 @@ class TrialConfig:
     scene_options : passed to ``sim.laundry.laundry_spec`` (e.g. ``{"state": "flat"}``)
     """
 
+    task: str = "corner"
+    regrasp: str = "adjacent"
+    unfold: UnfoldConfig = field(default_factory=UnfoldConfig)
     kind: str = "corner"
     observe_frames: int = 5
     max_candidates: int = 10
@@ -123,6 +143,14 @@ class TrialConfig:
     scene_options: dict = field(default_factory=dict)
 
     def __post_init__(self):
+        from launch_scripts.trial_runner.unfold import REGRASPS
+
+        if self.task not in TASKS:
+            raise ValueError(f"Expected task in {TASKS}, got {self.task!r}")
+        if self.regrasp not in REGRASPS:
+            raise ValueError(f"Expected regrasp in {REGRASPS}, got {self.regrasp!r}")
+        if self.task == "unfold" and self.kind != "corner":
+            raise ValueError(f"The unfold task grasps corners: expected kind 'corner', got {self.kind!r}")
         if self.kind not in GraspPlan.KINDS:
             raise ValueError(f"Expected kind in {GraspPlan.KINDS}, got {self.kind!r}")
         if int(self.observe_frames) < 1:
@@ -199,16 +227,21 @@ class _Link:
         raise TimeoutError(f"no estimate of frame {frame.seq} within {self.config.frame_timeout_s:.0f} s")
 
     def plan(self, kind: str, last_seq: int, republish) -> tuple[GraspPlanReply, float]:
-        """A plan on the estimate of frame ``last_seq``; returns the reply and its round trip in ms.
+        """A plan of ``kind`` on the estimate of frame ``last_seq``; returns the reply and its round trip in ms."""
+        request = GraspRequest(request_id=last_seq, max_candidates=self.config.max_candidates, kinds=(kind,))
+        return self.ask(request, last_seq, republish)
 
-        ``not_ready`` or a plan on an older estimate (the planner's subscriber has not
-        seen the newest yet) is asked again; after a second the last frame is shown again
-        so that a new estimate of it is published.
+    def ask(self, request, last_seq: int, republish) -> tuple[object, float]:
+        """The planner's reply to ``request`` on the estimate of frame ``last_seq`` (or a newer
+        one), and the round trip of the request it answered, in ms.
+
+        ``not_ready`` or a reply on an older estimate (the planner's subscriber has not
+        seen the newest yet) is asked again; after a second ``republish()`` shows the last
+        frame again so that a new estimate of it is published.
         """
         from ipc.transport import RemoteError
 
         deadline = time.monotonic() + self.config.plan_timeout_s
-        request = GraspRequest(request_id=last_seq, max_candidates=self.config.max_candidates, kinds=(kind,))
         asked = time.monotonic()
         why = "no reply"
         while time.monotonic() < deadline:
@@ -278,17 +311,23 @@ def run_trial(seed: int, config: TrialConfig | None = None,
     # zmq and PyBullet are loaded when a trial runs, not when the runner imports this module.
     from ipc.transport import Publisher
     from launch_scripts.planner_service import arguments_from_config
+    from launch_scripts.trial_runner.unfold import run_unfold
     from sim.laundry import LaundryScene, laundry_spec
 
     config = config if config is not None else TrialConfig()
     choose_plan = choose_plan if choose_plan is not None else default_controller(config.kind)
     start = time.perf_counter()
-    record = {"seed": int(seed), "kind": config.kind, "success": False, "corner_success": False, "failure": ""}
+    record = {"seed": int(seed), "task": config.task, "kind": config.kind, "success": False, "corner_success": False,
+              "failure": ""}
+    unfold = config.task == "unfold"
+    if unfold:
+        record["regrasp"] = config.regrasp
     with contextlib.ExitStack() as stack:
         try:
-            spec = laundry_spec(seed, **config.scene_options)
+            # the unfold task's camera stands back to see the lifted cloth; the robot knows its own arms
+            spec = laundry_spec(seed, view="room" if unfold else "table", **config.scene_options)
             record["scene"] = scene_record(seed, spec=spec)
-            scene = stack.enter_context(LaundryScene(spec, noise=config.noise))
+            scene = stack.enter_context(LaundryScene(spec, noise=config.noise, known_occluders=unfold))
             log_dir = Path(config.log_dir) / f"seed{seed}" if config.log_dir else Path(
                 stack.enter_context(tempfile.TemporaryDirectory(prefix="clothkit_trial_")))
             children = stack.enter_context(Children(log_dir))
@@ -301,7 +340,10 @@ def run_trial(seed: int, config: TrialConfig | None = None,
                 "--print-endpoints", "--kinds", config.kind, *arguments_from_config(planner_config(config, scene))])
             link = _Link(stack, children, frames_pub, perception, planner, config)
             link.configure_tracker(config.tracker)
-            _observe_plan_execute(scene, link, config, choose_plan, record)
+            if unfold:
+                run_unfold(scene, link, config, record, _observe)
+            else:
+                _observe_plan_execute(scene, link, config, choose_plan, record)
         except (ChildError, TimeoutError, OSError, RuntimeError, ValueError) as e:
             log.warning("seed %d: %s: %s", seed, type(e).__name__, e)
             record["failure"] = f"error: {type(e).__name__}: {' '.join(str(e).split())}"
@@ -328,7 +370,9 @@ def _observe(scene, link: _Link, config: TrialConfig, reference) -> tuple[dict, 
             mask = mask_from_reference(frame, reference)
             if not mask.any():
                 raise RuntimeError("no cloth found against the empty table")
-            status = link.control.request(InitialiseRequest(request_id=1, mask=mask))
+            # The unfold task lifts the cloth off the table: the tracker must know the empty table.
+            background = reference if config.task == "unfold" else None
+            status = link.control.request(InitialiseRequest(request_id=1, mask=mask, background=background))
             if not isinstance(status, StatusReply) or status.state != "initialising":
                 raise RuntimeError(f"perception service did not accept the initialisation ({status})")
         frames[frame.seq] = frame

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ipc.messages import GraspPlan
-from sim.laundry.truth import distance_to_segments, nearest_corner
+from sim.laundry.truth import distance_to_segments, nearest_corner, share_an_edge
 
 log = logging.getLogger(__name__)
 
@@ -78,3 +78,67 @@ def judge(kind: str, grasped_uv, lifted_clear: bool, corners_uv: np.ndarray, out
         reasons.append("not lifted clear")
     return Judgement(success=not reasons, corner_success=corner_success, corner_error_m=corner_error,
                      nearest_corner=k, boundary_error_m=boundary_error, reason="; ".join(reasons))
+
+
+#: An unfolded edge must be held stretched to at least this fraction of its material length.
+MIN_STRETCH = 0.9
+
+
+@dataclass(frozen=True)
+class UnfoldJudgement:
+    """The verdict on an unfolding: two grippers holding a cloth by two corners.
+
+    success : both held points within the tolerance of true corners that share an edge
+        (``sim.laundry.truth.CORNER_EDGES``), held apart by at least ``MIN_STRETCH`` of
+        their material distance, and the cloth clear of the table
+    first_corner, second_corner : index of the true corner nearest each held point (-1: nothing held)
+    first_error_m, second_error_m : material distance from each held point to that corner (inf: nothing held)
+    adjacent : the two nearest corners share an edge
+    stretch : distance between the held points in space over their material distance (0: not both held)
+    reason : "" on success, else one line saying why not
+    """
+
+    success: bool
+    first_corner: int
+    second_corner: int
+    first_error_m: float
+    second_error_m: float
+    adjacent: bool
+    stretch: float
+    reason: str
+
+
+def judge_unfold(cloth_kind: str, first_uv, second_uv, held_apart_m: float, lifted_clear: bool,
+                 corners_uv: np.ndarray, tolerance_m: float = TOLERANCE_M) -> UnfoldJudgement:
+    """Judge an unfolding by ground truth (material coordinates, metres).
+
+    cloth_kind : "towel" or "tshirt" (which corner pairs share an edge)
+    first_uv, second_uv : (2,) float metres, the material points the two grippers hold;
+        None for a gripper that holds nothing
+    held_apart_m : distance between those two points in space now, metres
+    lifted_clear : no node of the cloth near the surface under it
+    corners_uv : (C, 2) float metres, the true corners
+    """
+    if first_uv is None or second_uv is None:
+        which = "first" if first_uv is None else "second"
+        k1, e1 = nearest_corner(np.asarray(first_uv), corners_uv) if first_uv is not None else (-1, math.inf)
+        k2, e2 = nearest_corner(np.asarray(second_uv), corners_uv) if second_uv is not None else (-1, math.inf)
+        return UnfoldJudgement(False, k1, k2, e1, e2, False, 0.0, f"missed: the {which} gripper holds no cloth")
+    a, b = np.asarray(first_uv, dtype=np.float64).reshape(2), np.asarray(second_uv, dtype=np.float64).reshape(2)
+    k1, e1 = nearest_corner(a, corners_uv)
+    k2, e2 = nearest_corner(b, corners_uv)
+    adjacent = k1 != k2 and share_an_edge(cloth_kind, k1, k2)
+    material = float(np.linalg.norm(a - b))
+    stretch = float(held_apart_m) / material if material > 0 else 0.0
+    reasons = []
+    if e1 > tolerance_m:
+        reasons.append(f"first grasp {100 * e1:.1f} cm from the nearest corner")
+    if e2 > tolerance_m:
+        reasons.append(f"second grasp {100 * e2:.1f} cm from the nearest corner")
+    if not adjacent:
+        reasons.append("the held corners do not share an edge" if k1 != k2 else "both grippers hold the same corner")
+    if stretch < MIN_STRETCH:
+        reasons.append(f"edge held at {100 * stretch:.0f} % of its length")
+    if not lifted_clear:
+        reasons.append("not clear of the table")
+    return UnfoldJudgement(not reasons, k1, k2, e1, e2, adjacent, stretch, "; ".join(reasons))

@@ -3,18 +3,48 @@
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
 
 import numpy as np
 
 from ipc.messages import RGBDFrame
 from perception.geometry import boundary_vertices, rotation_about_axis, transform_points
-from sim.camera import VirtualCamera
+from sim.camera import SOLID_ID, VirtualCamera
 from sim.laundry.spec import HOLDER_HALF_EXTENTS_M, HOLDER_RADIUS_M, TABLE_HALF_XY_M, LaundrySpec, laundry_spec
 from sim.noise import DepthNoiseModel
 from sim.physics import ClothPhysics, Gripper
+from sim.robot_drawing import GripperLook
 from sim.scene import PhysicsScene
+from sim.solids import merge
 
 log = logging.getLogger(__name__)
+
+
+@dataclass
+class RobotHand:
+    """One of the robot's grippers as the simulation moves it and the camera sees it.
+
+    gripper : the kinematic ``sim.physics.Gripper`` (its pose is the fingertip centre and
+        ``R_world_gripper``, the convention of ``sim.grasp_execution``)
+    look : GripperLook, how its fingers, wrist and arm are drawn
+    shoulder_world : (3,) float64 metres, where its arm is mounted, or None for a forearm
+        straight back from the wrist
+    opening_m : distance between the fingers' inner faces as drawn (0 once closed)
+    """
+
+    gripper: Gripper
+    look: GripperLook
+    shoulder_world: np.ndarray | None
+    opening_m: float
+
+    def T_world_gripper(self) -> np.ndarray:
+        """(4, 4) float64, the gripper frame to world, now."""
+        from scipy.spatial.transform import Rotation
+
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_quat(self.gripper.quat_xyzw).as_matrix()
+        T[:3, 3] = self.gripper.position
+        return T
 
 
 class LaundryScene(PhysicsScene):
@@ -23,16 +53,21 @@ class LaundryScene(PhysicsScene):
     spec : LaundrySpec (``laundry_spec(seed)``)
     noise : add sensor noise to rendered frames (its random stream comes from the seed)
     noise_model : DepthNoiseModel, Kinect-like by default
+    known_occluders : frames carry the mask of the robot's hands and arms as drawn
+        (``RGBDFrame.occluder_mask``), as a robot that knows where its own arms are sends it
 
     A ``sim.scene.Scene``. After construction (and ``reset``) the cloth has settled for
     ``spec.settle_s`` (and been brought to rest for ``spec.rest_s``): frame 0. ``step()``
     advances one frame, ``render()`` returns what the sensor sees now, ``render_empty()``
     the same view without the cloth (a reference picture of the empty table), and the
     accessors below give the ground truth. Use as a context manager or call ``close()``.
+    ``add_robot_hand`` adds a gripper that the camera sees with its wrist and arm.
     """
 
-    def __init__(self, spec: LaundrySpec, noise: bool = True, noise_model: DepthNoiseModel | None = None):
+    def __init__(self, spec: LaundrySpec, noise: bool = True, noise_model: DepthNoiseModel | None = None,
+                 known_occluders: bool = False):
         self.spec = spec
+        self.known_occluders = bool(known_occluders)
         self.name = f"laundry:{spec.seed}"
         self.noise = bool(noise)
         self.noise_model = noise_model or DepthNoiseModel()
@@ -41,6 +76,7 @@ class LaundryScene(PhysicsScene):
         if isinstance(spec.substeps, bool) or int(spec.substeps) != spec.substeps or spec.substeps < 1:
             raise ValueError(f"LaundryScene: expected spec.substeps a positive integer, got {spec.substeps!r}")
         self.physics: ClothPhysics | None = None
+        self.hands: list[RobotHand] = []
         self.reset()
         log.info("laundry scene %s", spec.describe())
 
@@ -48,6 +84,7 @@ class LaundryScene(PhysicsScene):
         """Build the world from the spec again and let the cloth settle: frame 0, and the same
         frames (noise included) after it as the first time."""
         self.close()
+        self.hands = []
         spec = self.spec
         _, noise_seq = np.random.SeedSequence(spec.seed).spawn(2)
         self._noise_rng = np.random.default_rng(noise_seq)
@@ -85,6 +122,24 @@ class LaundryScene(PhysicsScene):
         self.physics.advance(1.0 / self.fps)
         self.frame_index += 1
 
+    def add_robot_hand(self, position, quat_xyzw, shoulder_world=None, look: GripperLook | None = None,
+                       opening_m: float | None = None) -> RobotHand:
+        """A robot gripper at a world pose (fingertip centre, ``R_world_gripper`` as a quaternion),
+        open, drawn with its wrist and its arm reaching to ``shoulder_world`` (3,) metres."""
+        look = look if look is not None else GripperLook()
+        gripper = self.physics.add_gripper(position, quat_xyzw)
+        hand = RobotHand(gripper, look, None if shoulder_world is None else np.asarray(shoulder_world, dtype=np.float64),
+                         look.max_opening_m if opening_m is None else float(opening_m))
+        self.hands.append(hand)
+        return hand
+
+    def step_coming_to_rest(self) -> None:
+        """Advance one frame period while the cloth comes to rest as air drag would bring it
+        (``ClothPhysics.settle_to_rest``; PyBullet's cloth has no drag and would swing on for
+        tens of seconds). For a robot waiting, grippers still, for a hanging cloth to calm."""
+        self.physics.settle_to_rest(1.0 / self.fps)
+        self.frame_index += 1
+
     def release_holder(self) -> None:
         """The holder of a ``held`` cloth lets go (nothing happens for other states)."""
         if self.holder is not None:
@@ -92,15 +147,27 @@ class LaundryScene(PhysicsScene):
 
     # -- sensor -------------------------------------------------------------------------------
 
-    def _frame(self, rgb: np.ndarray, depth: np.ndarray) -> RGBDFrame:
+    def _frame(self, rgb: np.ndarray, depth: np.ndarray, occluder_mask: np.ndarray | None = None) -> RGBDFrame:
         rgb, depth = self._sensed(rgb, depth)
-        return RGBDFrame(rgb=rgb, depth_m=depth, camera=self.camera, timestamp_s=self.time_s, seq=self.frame_index)
+        return RGBDFrame(rgb=rgb, depth_m=depth, camera=self.camera, timestamp_s=self.time_s, seq=self.frame_index,
+                         occluder_mask=occluder_mask)
+
+    def _hands_drawn(self):
+        """The robot's hands and arms as one world-frame SolidMesh, or None without hands."""
+        if not self.hands:
+            return None
+        return merge([h.look.mesh(h.T_world_gripper(), h.opening_m, h.shoulder_world) for h in self.hands])
 
     def render(self) -> RGBDFrame:
-        """The current frame as the sensor sees it (with noise if the scene has it)."""
-        image = self.virtual_camera.render(self.physics, self.spec.texture_rgb)
+        """The current frame as the sensor sees it (with noise if the scene has it), the
+        robot's hands and arms drawn in it (their mask in ``occluder_mask`` when the scene
+        has ``known_occluders``)."""
+        image = self.virtual_camera.render(self.physics, self.spec.texture_rgb, solids=self._hands_drawn())
         self._last_mask = image.body_ids == self.cloth_id
-        return self._frame(image.rgb, image.depth_m)
+        occluders = None
+        if self.known_occluders and self.hands:
+            occluders = image.body_ids == SOLID_ID
+        return self._frame(image.rgb, image.depth_m, occluders)
 
     def render_empty(self) -> RGBDFrame:
         """The same view without the cloth: what the sensor saw of the empty table."""

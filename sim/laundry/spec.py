@@ -24,6 +24,10 @@ from sim.textures import plain_texture, poster_texture, random_plain_colour
 log = logging.getLogger(__name__)
 
 CLOTH_KINDS = ("towel", "tshirt")
+#: Where the camera stands: "table" looks down at the cloth from close by (the corner
+#: task); "room" stands farther back and lower, seeing the table and the space above it,
+#: where a lifted cloth hangs (the unfold task).
+VIEWS = ("table", "room")
 INITIAL_STATES = ("flat", "crumpled", "folded", "held")
 #: How often each initial state is drawn, in the order of ``INITIAL_STATES``.
 STATE_PROBABILITIES = (0.35, 0.25, 0.15, 0.25)
@@ -165,6 +169,22 @@ def _camera_pose(rng: np.random.Generator, target: np.ndarray) -> np.ndarray:
     return look_at(eye, target + rng.uniform(-0.03, 0.03, 3))
 
 
+def _room_camera_pose(rng: np.random.Generator, table_top_m: float) -> np.ndarray:
+    """T_world_cam seeing the table and up to ~1 m above it: 1.55-1.75 m from a point 0.35 m
+    over the table's centre, 18-28 deg elevation, azimuth within 15 deg of the front (-y).
+
+    With the Kinect-like intrinsics (vertical field of view about 49 deg) that covers a
+    cloth lying on the table and the same cloth hanging from a gripper up to ~0.9 m above it.
+    """
+    target = np.array([0.0, 0.0, table_top_m + 0.35])
+    distance = rng.uniform(1.55, 1.75)
+    elevation = np.radians(rng.uniform(18.0, 28.0))
+    azimuth = np.radians(-90.0 + rng.uniform(-15.0, 15.0))
+    eye = target + distance * np.array([np.cos(elevation) * np.cos(azimuth), np.cos(elevation) * np.sin(azimuth),
+                                        np.sin(elevation)])
+    return look_at(eye, target + rng.uniform(-0.03, 0.03, 3))
+
+
 def _texture(mesh: ClothMesh, rng: np.random.Generator, printed: bool, px_per_m: float = 900.0) -> np.ndarray:
     if not printed:
         return plain_texture(random_plain_colour(rng))
@@ -175,14 +195,18 @@ def _texture(mesh: ClothMesh, rng: np.random.Generator, printed: bool, px_per_m:
 
 
 def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None = None,
-                 cloth_kind: str | None = None) -> LaundrySpec:
+                 cloth_kind: str | None = None, view: str = "table") -> LaundrySpec:
     """Draw a laundry scene from ``seed`` (see the module docstring).
 
     camera : CameraInfo, default Kinect-like 640x480
     state, cloth_kind : force the initial state or cloth kind (tests, demonstrations);
         everything else is still drawn from the seed
+    view : where the camera stands (``VIEWS``); the cloth, the table and everything else
+        drawn from the seed are the same in every view
     """
     seed = check_seed(seed)
+    if view not in VIEWS:
+        raise ValueError(f"unknown view {view!r}; expected one of {', '.join(VIEWS)}")
     if state is not None and state not in INITIAL_STATES:
         raise ValueError(f"unknown initial state {state!r}; expected one of {', '.join(INITIAL_STATES)}")
     if cloth_kind is not None and cloth_kind not in CLOTH_KINDS:
@@ -257,7 +281,8 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
         # PyBullet cloth has no air drag: a hanging cloth still swings at 0.1-0.4 m/s after
         # 5 s. It falls into its folds freely, then is brought to rest as air would do.
         settle_s, rest_s = 5.0, 2.0
-    T_world_cam = _camera_pose(rng, target)
+    # The camera is drawn last, so a view changes nothing else the seed draws.
+    T_world_cam = _camera_pose(rng, target) if view == "table" else _room_camera_pose(rng, float(table_top))
     return LaundrySpec(
         seed=seed, cloth_kind=kind, cloth=mesh, printed=printed, texture_rgb=texture, material=material,
         corners_uv=corners_uv, corner_names=names, outline_edges=boundary_edges(mesh.faces), state=state,

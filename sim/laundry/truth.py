@@ -67,3 +67,21 @@ def nearest_corner(uv: np.ndarray, corners_uv: np.ndarray) -> tuple[int, float]:
     d = np.linalg.norm(np.asarray(corners_uv, dtype=np.float64) - np.asarray(uv, dtype=np.float64).reshape(1, 2), axis=1)
     k = int(np.argmin(d))
     return k, float(d[k])
+
+
+#: Pairs of true corners (indices into the corners of ``rectangle_corners_uv`` and
+#: ``tshirt_corners_uv``) that share an edge of the cloth: what an unfolding robot
+#: stretches between its two grippers. A towel's four sides; a T-shirt's hem (the two hem
+#: corners) and each cuff (a sleeve end's two corners). A shirt's side seam, from a hem
+#: corner past the armpit to a cuff, is not one edge.
+CORNER_EDGES = {
+    "towel": ((0, 1), (1, 2), (2, 3), (3, 0)),
+    "tshirt": ((0, 1), (2, 3), (4, 5)),
+}
+
+
+def share_an_edge(cloth_kind: str, corner_a: int, corner_b: int) -> bool:
+    """Whether two true corners (indices) of a cloth of kind ``cloth_kind`` share an edge (``CORNER_EDGES``)."""
+    if cloth_kind not in CORNER_EDGES:
+        raise ValueError(f"share_an_edge: unknown cloth kind {cloth_kind!r}; expected one of {', '.join(CORNER_EDGES)}")
+    return (corner_a, corner_b) in CORNER_EDGES[cloth_kind] or (corner_b, corner_a) in CORNER_EDGES[cloth_kind]

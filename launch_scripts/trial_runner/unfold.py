@@ -1,0 +1,335 @@
+"""The unfold task of a trial: first corner, lift while tracked, second corner, stretch.
+
+``run_unfold(scene, link, config, record, observe)`` runs once the services are up (see
+``launch_scripts.trial_runner.trial``). After the still frames that initialise the tracker
+and the first corner plan (as the corner task), every frame the camera takes until the
+end goes through the perception service at the camera's rate in simulation time (30 Hz),
+each after the previous one's estimate arrived: the first gripper's approach, the lift
+(``sim.laundry.unfold``), the hanging cloth coming to rest, the second gripper's approach
+and the stretch. The robot's hands and arms are drawn in the frames, and their mask goes
+with each frame as the known occluder. The second corner is chosen by
+``config.regrasp``:
+
+- "adjacent": the planner's ``AdjacentCornersRequest``: the corners next to the held one
+  along the tracked mesh's canonical outline, at their tracked positions;
+- "lowest": the lowest point of the hanging cloth as the camera sees it (the classic
+  regrasp heuristic; ``grasping.lowest_point_grasp``), no tracking needed;
+- "redetect": the perception service is initialised afresh on the hanging cloth and the
+  planner's best corner away from the first gripper is taken, without the lift's history.
+
+The record gains ``task``, ``regrasp``, ``first_grasp``, ``second_grasp``, ``unfold``
+(the judgement), ``tracking`` (error during the lift and at the second plan, frames
+tracked, confidence) and a picture strip through the lift.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ipc.messages import AdjacentCornersRequest, GraspPlan, InitialiseRequest, MeshEstimate, StatusReply
+from perception.geometry import invert_transform, transform_points
+from sim.grasp_execution import close_fingers, fingertip_target, move_grippers, plan_to_world
+from sim.ground_truth import error_summary, vertex_errors
+from sim.laundry.controller import View, default_controller
+from sim.laundry.judge import TOLERANCE_M, judge_unfold
+from sim.laundry.pictures import caption, draw_plan, save_png, strip
+from sim.laundry.segment import cloth_points, mask_from_reference
+from sim.laundry.truth import nearest_corner
+from sim.laundry.unfold import arm_for, lift_target, second_fingertip, stretch_targets
+
+log = logging.getLogger(__name__)
+
+#: How the second corner is chosen (see the module docstring).
+REGRASPS = ("adjacent", "lowest", "redetect")
+
+
+class _Tracking:
+    """Every frame from now on: rendered, sent to the perception service, its estimate kept.
+
+    Keeps per frame the estimate's vertices, the true cloth, confidence, ``lost`` and the
+    tracking time; frames themselves only where a picture is taken (``keep``).
+    """
+
+    def __init__(self, scene, link, frames: dict, truth: dict, estimates: dict):
+        self.scene, self.link = scene, link
+        self.holds: list[tuple[int, object]] = []  # (mesh vertex, RobotHand holding it)
+        self._T_cam_world = invert_transform(scene.T_world_cam)
+        self.frames, self.truth, self.estimates = frames, truth, estimates
+        self.kept: dict[str, tuple] = {}
+        self.plans: dict[str, GraspPlan | None] = {}  # the plan drawn on a kept frame
+        self.phase = "approach"
+        self.phases: dict[int, str] = {}
+
+    def __call__(self) -> None:
+        frame = self.scene.render()
+        if self.holds:  # what the robot holds and where, from its own kinematics
+            points = transform_points(self._T_cam_world, np.stack([hand.gripper.position for _, hand in self.holds]))
+            frame = dataclasses.replace(frame, held_vertices=np.array([v for v, _ in self.holds], np.int32),
+                                        held_points_m=points)
+        self.truth[frame.seq] = self.scene.cloth_vertices_cam()
+        estimate = self.estimates[frame.seq] = self.link.estimate_of(frame)
+        self.phases[frame.seq] = self.phase
+        log.debug("frame %d (%s): %d vertices, confidence %.2f%s", frame.seq, self.phase, len(estimate.vertices),
+                  estimate.confidence, ", lost" if estimate.lost else "")
+        self.frames["last"] = frame
+
+    def keep(self, name: str) -> None:
+        """Keep the last frame and its estimate for the picture, as ``name``."""
+        frame = self.frames["last"]
+        self.kept[name] = (frame, self.estimates[frame.seq], self.truth[frame.seq])
+
+    @property
+    def last_seq(self) -> int:
+        return self.frames["last"].seq
+
+
+def _held_vertex(plan: GraspPlan, reply, estimate: MeshEstimate) -> int:
+    """The canonical vertex of the first grasp: the plan's own for a planner candidate,
+    else the estimate's vertex nearest the planned position (a lowest-point plan)."""
+    if any(c is plan for c in reply.candidates):
+        return int(plan.vertex_id)
+    return int(np.argmin(np.linalg.norm(estimate.vertices - plan.position, axis=1)))
+
+
+def _lift_errors(estimates: dict, truth: dict, faces: np.ndarray, seqs: list[int]) -> dict | None:
+    """Mean and 95th percentile (mm) of the material-point error over ``seqs`` (from the
+    first estimate on), or None when the tracker changed its mesh on the way."""
+    first = min(estimates)
+    upto = [s for s in sorted(estimates) if s <= max(seqs)]
+    n = estimates[first].vertices.shape[0]
+    if any(estimates[s].vertices.shape[0] != n for s in upto):
+        return None
+    errors = vertex_errors(np.stack([estimates[s].vertices for s in upto]), np.stack([truth[s] for s in upto]), faces)
+    index = {s: i for i, s in enumerate(upto)}
+    chosen = errors[[index[s] for s in seqs if s in index]]
+    summary = error_summary(chosen)
+    return {"mean": round(summary["mean_mm"], 2), "p95": round(summary["p95_mm"], 2)}
+
+
+def _cloth_seen(frame, reference) -> np.ndarray:
+    """(H, W) bool: the cloth against the empty workspace, less the robot's own hands and arms."""
+    mask = mask_from_reference(frame, reference)
+    if frame.occluder_mask is not None:
+        mask &= ~frame.occluder_mask.astype(bool)
+    return mask
+
+
+def _second_plan(scene, link, config, tracking: _Tracking, reference, held_vertex: int, first_hand) -> tuple:
+    """The second grasp for ``config.regrasp``: (plan or None, the canonical distance between
+    the two held points in metres, the mesh vertex the plan grasps, details for the record)."""
+    frame = tracking.frames["last"]
+    estimate = tracking.estimates[frame.seq]
+    if config.regrasp == "adjacent":
+        reply, _ = link.ask(AdjacentCornersRequest(request_id=frame.seq, held_vertex=held_vertex, max_candidates=2),
+                            frame.seq, lambda: link.frames_pub.publish(frame))
+        usable = [c for c in reply.candidates if c.reachable] or list(reply.candidates)
+        if not usable:
+            return None, None, -1, {"reason": "the planner found no adjacent corner"}
+        best = usable[0]
+        distance = float(np.linalg.norm(estimate.canonical[best.plan.vertex_id] - estimate.canonical[held_vertex]))
+        return best.plan, distance, int(best.plan.vertex_id), {
+            "side": best.side, "visible": round(best.visible, 3),
+            "material_distance_m": round(best.material_distance_m, 4), "n_candidates": len(reply.candidates)}
+    if config.regrasp == "lowest":
+        from grasping import lowest_point_grasp
+
+        points = cloth_points(frame, _cloth_seen(frame, reference), reference)
+        if len(points) < 3:
+            return None, None, -1, {"reason": "no cloth seen below the gripper"}
+        plan = lowest_point_grasp(points, scene.T_world_cam, frame_id=frame.camera.frame_id,
+                                  timestamp_s=frame.timestamp_s)
+        k = int(np.argmin(np.linalg.norm(estimate.vertices - plan.position, axis=1)))
+        return plan, float(np.linalg.norm(estimate.canonical[k] - estimate.canonical[held_vertex])), k, {}
+    # redetect: a fresh mesh on the hanging cloth, the planner's best corner away from the first gripper
+    tracking.holds = []  # the held vertex belongs to the old mesh
+    status = link.control.request(InitialiseRequest(request_id=frame.seq, mask=_cloth_seen(frame, reference),
+                                                    background=reference))
+    if not isinstance(status, StatusReply) or status.state != "initialising":
+        raise RuntimeError(f"perception service did not accept the re-detection ({status})")
+    scene.step_coming_to_rest()
+    tracking()
+    fresh = tracking.estimates[tracking.last_seq]
+    first_cam = transform_points(invert_transform(scene.T_world_cam), first_hand.gripper.position[None])[0]
+    held_new = int(np.argmin(np.linalg.norm(fresh.vertices - first_cam, axis=1)))
+    tracking.holds = [(held_new, first_hand)]
+    reply, _ = link.plan("corner", tracking.last_seq, lambda: link.frames_pub.publish(tracking.frames["last"]))
+    away = [c for c in reply.candidates if np.linalg.norm(c.position - first_cam) > 2 * TOLERANCE_M]
+    if not away:
+        return None, None, -1, {"reason": "the re-detected mesh has no corner away from the first gripper"}
+    plan = away[0]
+    return plan, float(np.linalg.norm(fresh.canonical[plan.vertex_id] - fresh.canonical[held_new])), \
+        int(plan.vertex_id), {}
+
+
+def run_unfold(scene, link, config, record: dict, observe) -> None:
+    """The unfold task (module docstring); fills ``record``.
+
+    observe : (scene, link, config, reference) -> (frames, truth, estimates), the still
+        frames that initialise the tracker (``trial._observe``)
+    """
+    reference = scene.render_empty()
+    frames, truth, estimates = observe(scene, link, config, reference)
+    last = max(frames)
+    first_frame = frames[last]
+    reply, planning_ms = link.plan("corner", last, lambda: link.frames_pub.publish(first_frame))
+    planned_on = reply.estimate_seq if reply.estimate_seq in estimates else last
+    view = View(first_frame, reference, mask_from_reference(first_frame, reference))
+    plan = default_controller("corner")(reply, scene, view)
+    record["timing"] = {"init_ms": round(estimates[min(estimates)].timing_ms, 1), "planning_ms": round(planning_ms, 1)}
+    if plan is None:
+        record["failure"] = f"no corner grasp found on estimate {planned_on}"
+        return
+    held_vertex = _held_vertex(plan, reply, estimates[planned_on])
+    tracking = _Tracking(scene, link, {"last": first_frame}, truth, estimates)
+    tracking.keep("first plan")
+    tracking.plans["first plan"] = plan
+    try:
+        _unfold(scene, link, config, record, tracking, plan, held_vertex, estimates[planned_on].canonical, reference)
+    finally:
+        if config.pictures_dir is not None and tracking.kept:
+            record["picture"] = _pictures(scene, tracking, record, config)
+
+
+def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspPlan, held_vertex: int,
+            canonical: np.ndarray, reference) -> None:
+    """``run_unfold`` from the first grasp on; ``canonical`` (N, 3) is the mesh planned on's."""
+    execution, motion = config.execution, config.unfold
+    estimates = tracking.estimates
+
+    # first grasp
+    pose = plan_to_world(plan, scene.T_world_cam)
+    fingertip = fingertip_target(pose, float(scene.support_height(pose.position[None, :2])[0]), execution)
+    top = scene.spec.table_top_z
+    hand1 = scene.add_robot_hand(fingertip - execution.pregrasp_distance_m * pose.approach, pose.quat_xyzw,
+                                 arm_for(fingertip, top, motion))
+    move_grippers(scene, [(hand1.gripper, fingertip, None)], execution.pregrasp_distance_m / execution.approach_speed_m_s,
+                  tracking)
+    first = close_fingers(scene, hand1.gripper, pose, fingertip, execution)
+    hand1.opening_m = 0.0
+    record["first_grasp"] = _grasp_record(first, scene)
+    record["corner_success"] = bool(record["first_grasp"].get("at_corner"))
+    if first.grasped_uv is None:
+        record["failure"] = "missed: the first gripper holds no cloth"
+        return
+    scene.release_holder()
+    tracking.holds = [(held_vertex, hand1)]
+
+    # lift, tracked
+    tracking.phase = "lift"
+    lift_from = tracking.last_seq + 1
+    target = lift_target(fingertip, canonical, held_vertex, top, motion)
+    move_grippers(scene, [(hand1.gripper, target, None)],
+                  float(np.linalg.norm(target - hand1.gripper.position)) / motion.lift_speed_m_s, tracking)
+    tracking.keep("lifted")
+    lift_seqs = list(range(lift_from, tracking.last_seq + 1))
+    tracking.phase = "hang"
+    for _ in range(max(1, round(motion.hang_s * scene.fps))):
+        scene.step_coming_to_rest()
+        tracking()
+    plan_seq = tracking.last_seq
+
+    # second corner
+    second_plan, distance, second_vertex, details = _second_plan(scene, link, config, tracking, reference,
+                                                                 held_vertex, hand1)
+    tracking.keep("second plan")
+    tracking.plans["second plan"] = second_plan
+    record["tracking"] = _tracking_record(tracking, scene, lift_seqs, plan_seq)
+    if second_plan is None:
+        record["failure"] = details.get("reason", "no second grasp")
+        return
+    record["second_grasp"] = {"plan_cam": [round(float(v), 4) for v in second_plan.position],
+                              "vertex_id": int(second_plan.vertex_id), **details}
+    pose2 = plan_to_world(second_plan, scene.T_world_cam)
+    fingertip2 = second_fingertip(pose2.position, pose2.approach, motion)
+    hand2 = scene.add_robot_hand(fingertip2 - execution.pregrasp_distance_m * pose2.approach, pose2.quat_xyzw,
+                                 arm_for(fingertip2, top, motion, taken=hand1.shoulder_world))
+    tracking.phase = "second approach"
+    move_grippers(scene, [(hand2.gripper, fingertip2, None)], execution.pregrasp_distance_m / execution.approach_speed_m_s,
+                  tracking)
+    second = close_fingers(scene, hand2.gripper, pose2, fingertip2, execution)
+    hand2.opening_m = 0.0
+    if second.grasped_uv is not None:
+        tracking.holds.append((second_vertex, hand2))
+    record["second_grasp"].update(_grasp_record(second, scene))
+
+    # stretch
+    if second.grasped_uv is not None:
+        if distance is None or not math.isfinite(distance) or distance <= 0:
+            distance = float(np.linalg.norm(hand1.gripper.position - hand2.gripper.position))
+        t1, t2 = stretch_targets(hand1.gripper.position, hand2.gripper.position, distance, scene.T_world_cam)
+        tracking.phase = "stretch"
+        move_grippers(scene, [(hand1.gripper, t1, None), (hand2.gripper, t2, None)], motion.stretch_s, tracking)
+        tracking.phase = "settle"
+        for _ in range(max(1, round(motion.settle_s * scene.fps))):
+            scene.step_coming_to_rest()
+            tracking()
+    tracking.keep("stretched")
+    apart = float(np.linalg.norm(hand1.gripper.position - hand2.gripper.position))
+    clearance = float(scene.clearance_above_support().min())
+    verdict = judge_unfold(scene.spec.cloth_kind, first.grasped_uv, second.grasped_uv, apart,
+                           clearance >= execution.clear_margin_m, scene.spec.corners_uv)
+    names = scene.spec.corner_names
+    record.update(success=verdict.success, failure=verdict.reason)
+    record["unfold"] = {"first_corner": names[verdict.first_corner] if verdict.first_corner >= 0 else None,
+                        "second_corner": names[verdict.second_corner] if verdict.second_corner >= 0 else None,
+                        "first_error_m": _finite(verdict.first_error_m), "second_error_m": _finite(verdict.second_error_m),
+                        "adjacent": verdict.adjacent, "stretch": round(verdict.stretch, 3),
+                        "lowest_clearance_m": round(clearance, 4), "held_apart_m": round(apart, 4)}
+    record["tracking"].update(_tracking_record(tracking, scene, lift_seqs, plan_seq, errors=False))
+    timings = [estimates[s].timing_ms for s in tracking.phases]
+    record["timing"]["tracking_ms"] = round(float(np.median(timings)), 1) if timings else None
+
+
+def _finite(value: float) -> float | None:
+    return None if not math.isfinite(value) else round(float(value), 4)
+
+
+def _grasp_record(closing, scene) -> dict:
+    """What a gripper closed on: the material point, the nearest true corner and the distance to it."""
+    if closing.grasped_uv is None:
+        return {"held": False}
+    k, error = nearest_corner(closing.grasped_uv, scene.spec.corners_uv)
+    return {"held": True, "uv": [round(float(v), 4) for v in closing.grasped_uv],
+            "nearest_corner": scene.spec.corner_names[k], "corner_error_m": round(error, 4),
+            "at_corner": error <= TOLERANCE_M}
+
+
+def _tracking_record(tracking: _Tracking, scene, lift_seqs: list[int], plan_seq: int, errors: bool = True) -> dict:
+    """Frames tracked (by phase, and how many flagged lost) and, with ``errors``, the tracking
+    error during the lift and at the second plan and the confidence then."""
+    estimates = tracking.estimates
+    by_phase: dict[str, int] = {}
+    for phase in tracking.phases.values():
+        by_phase[phase] = by_phase.get(phase, 0) + 1
+    counts = {"frames_tracked": len(tracking.phases), "frames_by_phase": by_phase,
+              "frames_lost": sum(bool(estimates[s].lost) for s in tracking.phases)}
+    if not errors:
+        return counts
+    return {"lift_error_mm": _lift_errors(estimates, tracking.truth, scene.faces, lift_seqs),
+            "second_plan_error_mm": _lift_errors(estimates, tracking.truth, scene.faces, [plan_seq]),
+            "confidence_at_second_plan": round(float(estimates[plan_seq].confidence), 3), **counts}
+
+
+def _pictures(scene, tracking: _Tracking, record: dict, config) -> str:
+    """A strip through the trial as far as it went: the first plan, the lifted cloth with its
+    tracked mesh, the second plan, the stretched cloth, the verdict on the last panel."""
+    K = scene.camera.K
+    captions = {"first plan": "first corner (red), true corners (green)", "lifted": "lifted: tracked mesh",
+                "second plan": f"second corner ({config.regrasp})", "stretched": "stretched"}
+    panels = []
+    for name, text in captions.items():
+        if name not in tracking.kept:
+            continue
+        frame, estimate, truth = tracking.kept[name]
+        plans = [tracking.plans[name]] if tracking.plans.get(name) is not None else []
+        panels.append(caption(draw_plan(frame.rgb, K, plans, truth[scene.corner_vertices()], estimate), text))
+    verdict = "SUCCESS" if record["success"] else f"FAILURE: {record['failure']}"
+    panels[-1] = caption(panels[-1], verdict, row=1)
+    path = Path(config.pictures_dir) / f"unfold_seed{record['seed']}_{config.regrasp}.png"
+    save_png(path, strip(panels))
+    return str(path)

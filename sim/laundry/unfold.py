@@ -1,0 +1,130 @@
+"""The unfolding robot's motions: lift a cloth by one corner, take a second corner, stretch the edge.
+
+The robot has two arms, mounted left and right of the table (``shoulders``), each ending
+in a parallel gripper that the camera sees (``LaundryScene.add_robot_hand``). The task,
+as ``launch_scripts.trial_runner`` runs it:
+
+1. the first gripper grasps a corner of the cloth on the table and lifts it straight up
+   at robot speed (``UnfoldConfig.lift_speed_m_s``) until the cloth hangs clear
+   (``lift_target``: the robot reads the cloth's size from the tracked mesh);
+2. it holds still while the cloth comes to rest (``UnfoldConfig.hang_s``);
+3. the second gripper takes the corner the planner chose (``second_fingertip``);
+4. both move apart horizontally, sideways to the camera, until the points they hold are
+   as far apart as along the cloth (``stretch_targets``), and the cloth settles.
+
+Everything here is geometry in the world frame (z up, metres); the scene and the services
+stay with the caller.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from perception.geometry import check_points, check_positive, check_transform, check_vector
+from sim.laundry.spec import TABLE_HALF_XY_M
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class UnfoldConfig:
+    """How the unfolding robot moves (metres, seconds).
+
+    lift_speed_m_s : mean speed of the lift (the smooth profile of
+        ``sim.grasp_execution.move_grippers`` peaks at 1.5 times it)
+    hang_clearance_m : the lifted cloth's lowest point should hang this far above the table
+    hang_s : the robot holds still this long, frames tracked, while the cloth comes to rest
+    pinch_overtravel_m : the second gripper's fingertips go this far past the planned
+        corner along the approach, so that the jaw closes over the cloth's edge
+    stretch_s : duration of the stretching motion
+    settle_s : time after the stretch before the cloth is judged
+    shoulder_height_m : the arms' mounts above the table top
+    shoulder_out_m : the mounts' distance beyond the table's left and right edges
+    """
+
+    lift_speed_m_s: float = 0.3
+    hang_clearance_m: float = 0.15
+    hang_s: float = 1.5
+    pinch_overtravel_m: float = 0.015
+    stretch_s: float = 1.0
+    settle_s: float = 1.0
+    shoulder_height_m: float = 0.45
+    shoulder_out_m: float = 0.15
+
+    def __post_init__(self):
+        for name in ("lift_speed_m_s", "stretch_s"):
+            check_positive(f"UnfoldConfig.{name}", getattr(self, name))
+        for name in ("hang_clearance_m", "hang_s", "pinch_overtravel_m", "settle_s", "shoulder_height_m",
+                     "shoulder_out_m"):
+            check_positive(f"UnfoldConfig.{name}", getattr(self, name), allow_zero=True)
+
+
+def shoulders(table_top_m: float, config: UnfoldConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(left, right) (3,) float64 world metres: where the two arms are mounted, beside the
+    table's left (-x) and right (+x) edges, level with its middle."""
+    x = TABLE_HALF_XY_M[0] + config.shoulder_out_m
+    z = float(table_top_m) + config.shoulder_height_m
+    return np.array([-x, 0.0, z]), np.array([x, 0.0, z])
+
+
+def arm_for(point_world: np.ndarray, table_top_m: float, config: UnfoldConfig, taken: np.ndarray | None = None
+            ) -> np.ndarray:
+    """The shoulder of the arm that reaches ``point_world`` (3,): the one on its side of the
+    table, or the other one when ``taken`` (the first arm's shoulder) is that one."""
+    left, right = shoulders(table_top_m, config)
+    near, far = (left, right) if float(point_world[0]) < 0 else (right, left)
+    if taken is not None and np.allclose(near, taken):
+        return far
+    return near
+
+
+def lift_target(grasped_world: np.ndarray, canonical: np.ndarray, held_vertex: int, table_top_m: float,
+                config: UnfoldConfig) -> np.ndarray:
+    """(3,) float64 world metres: straight above the grasp, high enough for the cloth to hang clear.
+
+    The cloth hangs at most as far below the gripper as its farthest material point is from
+    the held one; the robot reads that from the tracked mesh's canonical (rest) shape.
+    grasped_world : (3,) where the first gripper closed
+    canonical : (N, 3) float metres, the estimate's canonical mesh
+    held_vertex : its vertex nearest the held point
+    """
+    p = check_vector("grasped_world", grasped_world)
+    rest = check_points("canonical", canonical)
+    reach = float(np.linalg.norm(rest - rest[int(held_vertex)], axis=1).max())
+    return np.array([p[0], p[1], float(table_top_m) + reach + config.hang_clearance_m])
+
+
+def second_fingertip(position_world: np.ndarray, approach_world: np.ndarray, config: UnfoldConfig) -> np.ndarray:
+    """(3,) float64 world metres: where the second gripper's fingertips close, a little past
+    the planned corner along the approach (``UnfoldConfig.pinch_overtravel_m``)."""
+    a = check_vector("approach_world", approach_world)
+    return check_vector("position_world", position_world) + config.pinch_overtravel_m * a / np.linalg.norm(a)
+
+
+def stretch_targets(first_world: np.ndarray, second_world: np.ndarray, material_distance_m: float,
+                    T_world_cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where the two grippers go to stretch the edge between the points they hold.
+
+    Both end at the height of the higher one, ``material_distance_m`` apart along the
+    horizontal direction across the camera's view (sideways in its image, so that the
+    camera sees the stretched edge at its full length), about their midpoint, each
+    keeping its side.
+    first_world, second_world : (3,) float metres, the grippers now
+    T_world_cam : (4, 4) float, camera optical frame to world
+    returns (first target (3,), second target (3,)) float64 world metres
+    """
+    a, b = check_vector("first_world", first_world), check_vector("second_world", second_world)
+    T = check_transform("T_world_cam", T_world_cam)
+    across = T[:3, 0].copy()  # the camera's x axis: right in its image
+    across[2] = 0.0
+    norm = np.linalg.norm(across)
+    across = across / norm if norm > 1e-9 else np.array([1.0, 0.0, 0.0])
+    if float(np.dot(b - a, across)) < 0:
+        across = -across
+    middle = 0.5 * (a + b)
+    middle[2] = max(a[2], b[2])
+    half = 0.5 * float(material_distance_m)
+    return middle - half * across, middle + half * across

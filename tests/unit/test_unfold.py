@@ -1,0 +1,139 @@
+"""The unfold task's pieces: which corners share an edge, the judge, the robot's motions, its drawn hands."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from perception.geometry import look_at
+from sim.grasp_execution import move_grippers
+from sim.laundry import LaundryScene, laundry_spec
+from sim.laundry.judge import MIN_STRETCH, TOLERANCE_M, judge_unfold
+from sim.laundry.truth import rectangle_corners_uv, share_an_edge
+from sim.laundry.unfold import UnfoldConfig, arm_for, lift_target, shoulders, stretch_targets
+
+TOWEL, _ = rectangle_corners_uv(0.5, 0.4)
+
+
+def test_towel_corners_share_an_edge_with_their_neighbours_only():
+    assert share_an_edge("towel", 0, 1) and share_an_edge("towel", 3, 0) and share_an_edge("towel", 2, 1)
+    assert not share_an_edge("towel", 0, 2) and not share_an_edge("towel", 1, 3)
+
+
+def test_tshirt_edges_are_the_hem_and_the_cuffs():
+    # corners: right cuff top, right cuff bottom, right hem, left hem, left cuff bottom, left cuff top
+    assert share_an_edge("tshirt", 2, 3) and share_an_edge("tshirt", 0, 1) and share_an_edge("tshirt", 5, 4)
+    assert not share_an_edge("tshirt", 1, 2) and not share_an_edge("tshirt", 0, 5)
+    with pytest.raises(ValueError, match="unknown cloth kind"):
+        share_an_edge("sock", 0, 1)
+
+
+def test_adjacent_corners_held_stretched_and_clear_succeed():
+    first, second = TOWEL[0] + [0.01, 0.01], TOWEL[1] + [-0.01, 0.005]
+    apart = 0.95 * np.linalg.norm(first - second)
+    verdict = judge_unfold("towel", first, second, apart, True, TOWEL)
+    assert verdict.success and verdict.adjacent and verdict.reason == ""
+    assert (verdict.first_corner, verdict.second_corner) == (0, 1)
+    assert verdict.stretch == pytest.approx(0.95)
+
+
+@pytest.mark.parametrize(("second", "apart", "clear", "reason"), [
+    (TOWEL[2], 0.6, True, "do not share an edge"),
+    (TOWEL[0] + [0.01, 0.0], 0.3, True, "same corner"),
+    (TOWEL[1] + [0.0, 2 * TOLERANCE_M], 0.5, True, "second grasp"),
+    (TOWEL[1], 0.5 * MIN_STRETCH * 0.5, True, "of its length"),
+    (TOWEL[1], 0.5, False, "not clear of the table"),
+])
+def test_unfold_fails_for_the_right_reason(second, apart, clear, reason):
+    verdict = judge_unfold("towel", TOWEL[0], second, apart, clear, TOWEL)
+    assert not verdict.success
+    assert reason in verdict.reason
+
+
+def test_a_gripper_that_holds_nothing_fails():
+    verdict = judge_unfold("towel", TOWEL[0], None, 0.0, True, TOWEL)
+    assert not verdict.success and verdict.second_corner == -1 and "second gripper" in verdict.reason
+
+
+def test_lift_target_leaves_the_cloth_hanging_clear():
+    canonical = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0], [0.3, 0.4, 0.0], [0.0, 0.4, 0.0]])
+    config = UnfoldConfig(hang_clearance_m=0.1)
+    target = lift_target(np.array([0.2, -0.1, 0.75]), canonical, 0, table_top_m=0.75, config=config)
+    np.testing.assert_allclose(target, [0.2, -0.1, 0.75 + 0.5 + 0.1])
+
+
+def test_stretch_targets_are_level_apart_by_the_material_distance_and_across_the_view():
+    T_world_cam = look_at(np.array([0.3, -1.5, 1.4]), np.array([0.0, 0.0, 1.0]))
+    a, b = np.array([0.05, 0.02, 1.5]), np.array([-0.1, 0.1, 1.2])
+    ta, tb = stretch_targets(a, b, 0.45, T_world_cam)
+    assert ta[2] == pytest.approx(1.5) and tb[2] == pytest.approx(1.5)
+    assert np.linalg.norm(ta - tb) == pytest.approx(0.45)
+    across = T_world_cam[:3, 0].copy()
+    across[2] = 0.0
+    # along the camera's horizontal image axis, each gripper keeping its side
+    assert abs(np.dot(tb - ta, across / np.linalg.norm(across))) == pytest.approx(0.45)
+    assert np.dot(tb - ta, across) * np.dot(b - a, across) > 0
+    np.testing.assert_allclose(0.5 * (ta + tb)[:2], 0.5 * (a + b)[:2])
+
+
+def test_each_arm_reaches_its_side_and_the_second_takes_the_other():
+    config = UnfoldConfig()
+    left, right = shoulders(0.75, config)
+    assert left[0] < 0 < right[0]
+    np.testing.assert_allclose(arm_for(np.array([-0.2, 0.0, 0.8]), 0.75, config), left)
+    np.testing.assert_allclose(arm_for(np.array([-0.1, 0.0, 0.8]), 0.75, config, taken=left), right)
+
+
+class _Gripper:
+    def __init__(self, position):
+        self.position = np.asarray(position, dtype=float)
+        self.quat_xyzw = np.array([0.0, 0.0, 0.0, 1.0])
+        self.targets = []
+
+    def move_to(self, position, quat_xyzw=None):
+        self.targets.append(np.asarray(position, dtype=float))
+
+
+class _Scene:
+    fps = 30.0
+
+    def __init__(self, grippers):
+        self.grippers, self.steps = grippers, 0
+
+    def step(self):
+        self.steps += 1
+        for g in self.grippers:
+            g.position = g.targets[-1]
+
+
+def test_move_grippers_steps_once_a_frame_and_ramps_smoothly_to_the_target():
+    g1, g2 = _Gripper([0.0, 0.0, 1.0]), _Gripper([0.5, 0.0, 1.0])
+    scene = _Scene([g1, g2])
+    frames = []
+    move_grippers(scene, [(g1, [0.0, 0.0, 1.3], None), (g2, [0.8, 0.0, 1.0], None)], 1.0,
+                  on_frame=lambda: frames.append(scene.steps))
+    assert scene.steps == 30 and frames == list(range(1, 31))
+    heights = np.array([t[2] for t in g1.targets])
+    np.testing.assert_allclose(heights[-1], 1.3)
+    speeds = np.diff(np.concatenate([[1.0], heights])) * scene.fps
+    assert np.all(speeds > 0)
+    # a smooth start and stop: slow at both ends, 1.5 times the mean speed in the middle
+    assert speeds[0] < 0.1 * 0.3 and speeds[-1] < 0.1 * 0.3
+    assert speeds.max() == pytest.approx(1.5 * 0.3, rel=0.05)
+    np.testing.assert_allclose(g2.targets[-1], [0.8, 0.0, 1.0])
+
+
+def test_a_robot_hand_is_drawn_and_its_mask_sent_as_the_known_occluder():
+    spec = laundry_spec(2, view="room", state="flat")
+    with LaundryScene(spec, noise=False, known_occluders=True) as scene:
+        assert scene.render().occluder_mask is None  # no hand yet
+        corner = scene.corners_world()[0]
+        down = Rotation.from_matrix(np.column_stack([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])).as_quat()
+        left, _ = shoulders(spec.table_top_z, UnfoldConfig())
+        scene.add_robot_hand(corner + [0.0, 0.0, 0.05], down, left)
+        frame = scene.render()
+        mask = frame.occluder_mask.astype(bool)
+        assert mask.sum() > 500  # fingers, wrist and arm
+        # the hand is drawn in front of the cloth: where it is, the cloth is not seen
+        assert not (mask & scene.cloth_mask()).any()
+        scene.reset()
+        assert scene.hands == [] and scene.render().occluder_mask is None
