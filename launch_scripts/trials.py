@@ -17,16 +17,18 @@ seed; the rest of each scene is still drawn from its seed.
 Trials run in local processes, one per trial, ``--workers`` at a time (default 1; each
 trial also runs two service processes; a trial whose process dies is recorded as
 failed, "error: WorkerDied: ...", and the others go on), or as Ray tasks (``--engine
-ray``, needs ``ray``): on a local Ray instance of ``--workers`` CPUs, or, with
-``--ray-address ADDRESS`` (or the ``RAY_ADDRESS`` environment variable), on an existing
-cluster (``ray start --head``), ``--workers`` trials in flight at once, this process's
-packages shipped to the workers; each record then names the node that ran it. Outputs: REPORT.json (``success_rate``,
-``wilson_95``, ``summary`` and the ``trials``, each with at least ``seed`` and
-``success``), optionally a markdown summary and a picture per trial (the plan on the
-frame, the closed fingers, the lifted cloth), and the logs of the services and of the
-trial processes (``--log-dir``, default ``logs/`` beside REPORT.json). Exit status 0
-when every trial ran (whether its grasp succeeded or not), 1 when a trial could not run,
-2 for bad arguments (one line on stderr).
+ray``, needs ``ray``): on a local Ray instance of ``--workers`` CPUs or, with
+``--ray-address ADDRESS`` (or the ``RAY_ADDRESS`` environment variable), on a running
+cluster (``ray start --head``), ``--workers`` trials in flight at once and this
+process's packages shipped to its workers; each record then names the node that ran
+it, and a trial Ray could not run is an "error: ..." record too. Outputs: REPORT.json
+(``success_rate``, ``wilson_95``, ``summary`` and the ``trials``, each with at least
+``seed`` and ``success``), optionally a markdown summary and a picture per trial (the
+plan on the frame, the closed fingers, the lifted cloth), and the logs of the services
+and of the trial processes (``--log-dir``, default ``logs/`` beside REPORT.json). Exit
+status 0 when every trial ran (whether its grasp succeeded or not), 1 when a trial
+could not run, 2 for bad arguments or a cluster that cannot be reached (one line on
+stderr).
 """
 
 from __future__ import annotations
@@ -228,6 +230,24 @@ def _ray_address(text: str) -> str:
     return address
 
 
+def engine_and_address(engine: str | None, ray_address: str | None, environ) -> tuple[str, str | None]:
+    """The engine and the Ray cluster's address of ``--engine`` and ``--ray-address``.
+
+    ``--ray-address`` implies the Ray engine and contradicts the local one (ValueError);
+    with the Ray engine and no ``--ray-address``, ``environ["RAY_ADDRESS"]`` when set (as
+    Ray reads it), else None: a local Ray instance. The local engine ignores RAY_ADDRESS.
+    """
+    if ray_address is not None and engine == "local":
+        raise ValueError("--ray-address needs --engine ray (the local engine runs on this machine only)")
+    engine = engine or ("ray" if ray_address is not None else "local")
+    if engine == "ray" and ray_address is None and environ.get("RAY_ADDRESS", "").strip():
+        try:
+            ray_address = _ray_address(environ["RAY_ADDRESS"])
+        except argparse.ArgumentTypeError as e:
+            raise ValueError(f"RAY_ADDRESS: {e}") from None
+    return engine, ray_address
+
+
 def _host_port(address: str) -> tuple[str, int] | None:
     """(host, port) of HOST:PORT or ray://HOST:PORT ([IPv6]:PORT too), or None for another form."""
     host, colon, port = address.removeprefix("ray://").rpartition(":")
@@ -387,15 +407,10 @@ def main(argv: list[str] | None = None) -> int:
     seeds = sorted({s for group in args.seeds for s in group})
     if args.json.exists() and args.json.is_dir():
         parser.error(f"--json {args.json} is a directory")
-    if args.ray_address is not None and args.engine == "local":
-        parser.error("--ray-address needs --engine ray (the local engine runs on this machine only)")
-    engine = args.engine or ("ray" if args.ray_address is not None else "local")
-    address = args.ray_address
-    if engine == "ray" and address is None and os.environ.get("RAY_ADDRESS", "").strip():
-        try:
-            address = _ray_address(os.environ["RAY_ADDRESS"])
-        except argparse.ArgumentTypeError as e:
-            parser.error(f"RAY_ADDRESS: {e}")
+    try:
+        engine, address = engine_and_address(args.engine, args.ray_address, os.environ)
+    except ValueError as e:
+        parser.error(str(e))
     configure_logging(args.log_level)
     log_dir = args.log_dir if args.log_dir is not None else args.json.parent / "logs"
     scene_options = {k: v for k, v in (("state", args.state), ("cloth_kind", args.cloth)) if v is not None}

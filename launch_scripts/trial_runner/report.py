@@ -155,7 +155,8 @@ def _nodes_lines(used: list[dict]) -> list[str]:
     """The markdown line listing the Ray nodes that ran the trials, or none without Ray's."""
     if not used:
         return []
-    each = "; ".join(f"{n['host']} ({n['ip']}, node {n['id'][:12]}): {n['trials']} trials" for n in used)
+    each = "; ".join(f"{n['host']} ({n['ip']}, node {n['id'][:12]}): {n['trials']} trial{'s' if n['trials'] > 1 else ''}"
+                     for n in used)
     return [f"- ran on {len(used)} Ray node{'s' if len(used) > 1 else ''}: {each}"]
 
 

@@ -1,5 +1,5 @@
 """Trials on an existing Ray cluster: a head node started here with ``ray start --head`` (free
-ports, its own temporary folder), trials sent to it with ``--ray-address``,
+ports, its own temporary folder, its own token), trials sent to it with ``--ray-address``,
 and the head stopped by its process id (and only the processes of its own session)."""
 
 import importlib.util
@@ -59,7 +59,8 @@ def kill_all(pids) -> None:
 
 @pytest.fixture(scope="module")
 def ray_head():
-    """A Ray head node of 2 CPUs on 127.0.0.1 for this module's tests: yields its address.
+    """A Ray head node of 2 CPUs for this module's tests: yields its address, the IP address
+    it registered with, its folder and the environment a driver needs (its token).
 
     ``ray start --head --block`` in a session of its own, every port chosen free (a Ray
     already running on this machine is left alone), its folder a new temporary one. Stopped
