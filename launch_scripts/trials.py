@@ -289,6 +289,7 @@ def _shipped_packages():
 
 
 def _one_line(text, limit: int = 300) -> str:
+    """``text`` on one line (runs of white space as one space), at most ``limit`` characters."""
     return " ".join(str(text).split())[:limit]
 
 
@@ -347,6 +348,7 @@ def _connect(ray, address: str | None, workers: int) -> None:
         with _shipped_packages() as runtime_env:  # uploaded by ray.init
             ray.init(address=address, runtime_env=runtime_env, log_to_driver=False)
     except Exception as e:  # noqa: BLE001 -- whatever Ray raises (version mismatch, no raylet, upload) is one line
+        ray.shutdown()  # a connection half made
         hint = ""
         if (isinstance(e, ConnectionError) or "Authentication" in type(e).__name__) and (
                 os.environ.get("RAY_AUTH_MODE") != "token"):
