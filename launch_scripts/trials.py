@@ -1,8 +1,9 @@
 """Laundry-grasping trials in simulation, end to end through the ZeroMQ services.
 
     python -m launch_scripts.trials --seeds S [S ...] --json REPORT.json [--task corner|unfold]
-        [--regrasp adjacent|lowest|redetect ...] [--kind corner|boundary|highest] [--state STATE] [--cloth KIND] [--workers N]
-        [--engine local|ray] [--pictures DIR] [--markdown SUMMARY.md] [--frames N] [--log-dir DIR] [--quiet]
+        [--regrasp adjacent|lowest|redetect ...] [--kind corner|boundary|highest] [--state STATE]
+        [--cloth KIND] [--workers N] [--engine local|ray] [--ray-address ADDRESS] [--pictures DIR]
+        [--markdown SUMMARY.md] [--frames N] [--log-dir DIR] [--quiet]
 
 Each seed is one trial (``launch_scripts.trial_runner.trial.run_trial``): a towel or
 T-shirt on a table (or held up by a corner), drawn from the seed; its frames go through
@@ -18,26 +19,36 @@ per ``--regrasp`` choice of the second corner, reported side by side.
 
 Trials run in local processes, one per trial, ``--workers`` at a time (default 1; each
 trial also runs two service processes; a trial whose process dies is recorded as
-failed, "error: WorkerDied: ...", and the others go on), or on a local Ray instance
-(``--engine ray``, needs ``ray``). Outputs: REPORT.json (``success_rate``,
-``wilson_95``, ``summary`` and the ``trials``, each with at least ``seed`` and
-``success``), optionally a markdown summary and a picture per trial (the plan on the
-frame, the closed fingers, the lifted cloth), and the logs of the services and of the
-trial processes (``--log-dir``, default ``logs/`` beside REPORT.json). Exit status 0
-when every trial ran (whether its grasp succeeded or not), 1 when a trial could not run,
-2 for bad arguments (one line on stderr).
+failed, "error: WorkerDied: ...", and the others go on), or as Ray tasks (``--engine
+ray``, needs ``ray``): on a local Ray instance of ``--workers`` CPUs or, with
+``--ray-address ADDRESS`` (or the ``RAY_ADDRESS`` environment variable), on a running
+cluster (``ray start --head``), ``--workers`` trials in flight at once and this
+process's packages shipped to its workers; each record then names the node that ran
+it, and a trial Ray could not run is an "error: ..." record too. Outputs: REPORT.json
+(``success_rate``, ``wilson_95``, ``summary`` and the ``trials``, each with at least
+``seed`` and ``success``), optionally a markdown summary and a picture per trial (the
+plan on the frame, the closed fingers, the lifted cloth), and the logs of the services
+and of the trial processes (``--log-dir``, default ``logs/`` beside REPORT.json). Exit
+status 0 when every trial ran (whether its grasp succeeded or not), 1 when a trial
+could not run, 2 for bad arguments or a cluster that cannot be reached (one line on
+stderr).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import dataclasses
 import logging
 import multiprocessing
 import multiprocessing.connection
 import os
 import shlex
+import shutil
 import signal
+import socket
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -96,8 +107,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cloth", choices=CLOTH_KINDS,
                    help="force this cloth kind in every scene (default: drawn from the seed)")
     p.add_argument("--workers", type=positive_int, default=1, help="trials run at once (default 1)")
-    p.add_argument("--engine", choices=("local", "ray"), default="local",
-                   help="local processes (default) or a local Ray instance (needs ray)")
+    p.add_argument("--engine", choices=("local", "ray"),
+                   help="local processes (default), or Ray (needs ray): a local instance, or the cluster of --ray-address")
+    p.add_argument("--ray-address", type=_ray_address, metavar="ADDRESS",
+                   help="run on the existing Ray cluster there (HOST:PORT of its head, ray://HOST:PORT or auto; "
+                        "implies --engine ray; default: the RAY_ADDRESS environment variable with --engine ray)")
     p.add_argument("--pictures", type=Path, metavar="DIR", help="write a picture of each trial there")
     p.add_argument("--markdown", type=Path, metavar="SUMMARY.md", help="write a markdown summary there")
     p.add_argument("--frames", type=positive_int, default=TrialConfig().observe_frames,
@@ -214,31 +228,195 @@ def _run_local(seeds: list[int], config: TrialConfig, workers: int, progress, tr
     return records
 
 
-def _run_ray(seeds: list[int], config: TrialConfig, workers: int, progress) -> list[dict]:
+#: The packages shipped to the workers of a Ray cluster: every top-level package of the
+#: distribution, copied from where this process imports them (a checkout or an install).
+SHIPPED_PACKAGES = ("ipc", "perception", "grasping", "sim", "launch_scripts")
+#: Left out of the copies (glob patterns of names).
+SHIPPED_EXCLUDES = ("__pycache__", "*.pyc", "*.egg-info")
+#: Longest wait for a TCP connection to a cluster's address before giving up on it.
+CONNECT_TIMEOUT_S = 5.0
+
+
+def _ray_address(text: str) -> str:
+    """--ray-address: HOST:PORT of a head node (``ray start --head --port PORT``),
+    ray://HOST:PORT (Ray Client) or "auto" (the cluster started on this machine)."""
+    address = text.strip()
+    if address != "auto" and _host_port(address) is None:
+        raise argparse.ArgumentTypeError(f"expected HOST:PORT, ray://HOST:PORT or auto, got {text!r}")
+    return address
+
+
+def engine_and_address(engine: str | None, ray_address: str | None, environ) -> tuple[str, str | None]:
+    """The engine and the Ray cluster's address of ``--engine`` and ``--ray-address``.
+
+    ``--ray-address`` implies the Ray engine and contradicts the local one (ValueError);
+    with the Ray engine and no ``--ray-address``, ``environ["RAY_ADDRESS"]`` when set (as
+    Ray reads it), else None: a local Ray instance. The local engine ignores RAY_ADDRESS.
+    """
+    if ray_address is not None and engine == "local":
+        raise ValueError("--ray-address needs --engine ray (the local engine runs on this machine only)")
+    engine = engine or ("ray" if ray_address is not None else "local")
+    if engine == "ray" and ray_address is None and environ.get("RAY_ADDRESS", "").strip():
+        try:
+            ray_address = _ray_address(environ["RAY_ADDRESS"])
+        except argparse.ArgumentTypeError as e:
+            raise ValueError(f"RAY_ADDRESS: {e}") from None
+    return engine, ray_address
+
+
+def _host_port(address: str) -> tuple[str, int] | None:
+    """(host, port) of HOST:PORT or ray://HOST:PORT ([IPv6]:PORT too), or None for another form."""
+    host, colon, port = address.removeprefix("ray://").rpartition(":")
+    host = host.removeprefix("[").removesuffix("]")
+    if not colon or not host or not port.isdigit() or not 1 <= int(port) <= 65535:
+        return None
+    return host, int(port)
+
+
+def _check_reachable(address: str) -> None:
+    """Raise RuntimeError naming ``address`` when nothing answers there: ``ray.init`` would
+    retry an unreachable address for minutes."""
+    host_port = _host_port(address)
+    if host_port is None:  # "auto": Ray looks it up on this machine and says so when it finds none
+        return
+    try:
+        socket.create_connection(host_port, timeout=CONNECT_TIMEOUT_S).close()
+    except OSError as e:
+        raise RuntimeError(f"cannot reach the Ray cluster at {address}: {e.strerror or e}") from None
+
+
+@contextlib.contextmanager
+def _shipped_packages():
+    """A runtime environment for the trials on a cluster: this process's packages, copied to
+    a temporary folder that is the job's ``working_dir``. Ray zips and uploads it when the
+    job connects (at most 512 MiB; these are about 1 MiB) and unpacks it on each node as
+    its workers' current folder, first on their PYTHONPATH, which the trials' service
+    processes inherit. So a worker imports the driver's code, not a checkout or an install
+    of its own. (A ``working_dir`` rather than ``py_modules``: without one, Ray puts the
+    driver's current folder first on the workers' path, where a node's own checkout at the
+    same path would shadow the shipped code.)"""
+    import importlib
+
+    with tempfile.TemporaryDirectory(prefix="clothkit_shipped_") as staging:
+        for name in SHIPPED_PACKAGES:
+            (folder,) = importlib.import_module(name).__path__
+            shutil.copytree(folder, Path(staging) / name, ignore=shutil.ignore_patterns(*SHIPPED_EXCLUDES))
+        yield {"working_dir": staging}
+
+
+def _one_line(text, limit: int = 300) -> str:
+    """``text`` on one line (runs of white space as one space), at most ``limit`` characters."""
+    return " ".join(str(text).split())[:limit]
+
+
+def _ray_failure(error: Exception) -> str:
+    """The failure of a trial Ray could not run, one line: "error: " and the exception the
+    task raised, or Ray's own (a worker or node that died, a module missing on the worker)
+    without the traceback that follows its first line."""
+    cause = getattr(error, "cause", None)  # RayTaskError: what the task (or its arguments' unpickling) raised
+    error = cause if isinstance(cause, BaseException) else error
+    first = next((line for line in str(error).splitlines() if line.strip()), "")
+    return f"error: {type(error).__name__}: {_one_line(first)}"
+
+
+def _writable_here(folder: str | None) -> str | None:
+    """``folder`` if it can be made on this node, else a folder of the same name under this
+    node's temporary directory (a worker of a cluster need not have the driver's paths)."""
+    if folder is None:
+        return None
+    try:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        return folder
+    except OSError as e:
+        here = Path(tempfile.gettempdir()) / "clothkit_trials" / Path(folder).name
+        log.warning("cannot write to %s on this node (%s); writing to %s", folder, e.strerror or e, here)
+        return str(here)
+
+
+def _trial_on_ray(seed: int, config: TrialConfig, trial=run_trial) -> dict:
+    """In a Ray worker: ``trial(seed, config)`` (``run_trial``; tests pass another), and the
+    node that ran it in the record's ``node`` (Ray's node id, its IP address and host name,
+    and where the trial's logs went on it)."""
+    import ray
+
+    config = dataclasses.replace(config, log_dir=_writable_here(config.log_dir),
+                                 pictures_dir=_writable_here(config.pictures_dir))
+    node_id = ray.get_runtime_context().get_node_id()
+    # the address the node joined the cluster with (a machine may have several)
+    ip = next((n["NodeManagerAddress"] for n in ray.nodes() if n["NodeID"] == node_id), None)
+    node = {"id": node_id, "ip": ip or ray.util.get_node_ip_address(), "host": socket.gethostname(),
+            "log_dir": config.log_dir}
+    record = trial(seed, config)
+    record["node"] = node
+    return record
+
+
+def _connect(ray, address: str | None, workers: int) -> None:
+    """``ray.init``: a local instance of ``workers`` CPUs, or the cluster at ``address`` with
+    this process's packages shipped. Raises RuntimeError, one line naming the address, when
+    the cluster cannot be reached or joined."""
+    if address is None:
+        # "local": a new instance even when a cluster started on this machine exists
+        ray.init(address="local", num_cpus=workers, include_dashboard=False, log_to_driver=False)
+        return
+    _check_reachable(address)
+    try:
+        with _shipped_packages() as runtime_env:  # uploaded by ray.init
+            ray.init(address=address, runtime_env=runtime_env, log_to_driver=False)
+    except Exception as e:  # noqa: BLE001 -- whatever Ray raises (version mismatch, no raylet, upload) is one line
+        ray.shutdown()  # a connection half made
+        hint = ""
+        if (isinstance(e, ConnectionError) or "Authentication" in type(e).__name__) and (
+                os.environ.get("RAY_AUTH_MODE") != "token"):
+            hint = " (with token authentication: set RAY_AUTH_MODE=token, and its token in RAY_AUTH_TOKEN or ~/.ray/auth_token)"
+        raise RuntimeError(f"cannot run on the Ray cluster at {address}{hint}: {type(e).__name__}: {_one_line(e)}") from None
+
+
+def _run_ray(seeds: list[int], config: TrialConfig, workers: int, progress, address: str | None = None,
+             trial=run_trial) -> list[dict]:
+    """The trials as Ray tasks, at most ``workers`` in flight; returns their records.
+
+    Without ``address``, on a local Ray instance of ``workers`` CPUs; with one, on the
+    cluster there, this process's packages shipped to its workers (``_shipped_packages``).
+    Each task needs one CPU of a node and runs ``trial(seed, config)`` there (``run_trial``,
+    which starts the two service processes on that node; tests pass another), and its
+    record names the node (``node``). A task that raised, or whose worker or node died,
+    gives its seed a record whose failure starts with "error:", and the other trials go
+    on. Raises RuntimeError (one line) when ``ray`` is missing or the cluster cannot be
+    reached.
+    """
     try:
         import ray
     except ImportError as e:
         raise RuntimeError(f"--engine ray needs the Python module 'ray' ({e}); install it with: pip install 'ray>=2.9'") from None
-    started = not ray.is_initialized()
-    if started:
-        ray.init(num_cpus=workers, include_dashboard=False, log_to_driver=False)
-    try:
-        remote = ray.remote(num_cpus=1, max_retries=0)(run_trial)
-        pending = {remote.remote(seed, config): seed for seed in seeds}
-        records = []
-        while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
-            for ref in done:
-                seed = pending.pop(ref)
-                try:
-                    records.append(ray.get(ref))
-                except ray.exceptions.RayError as e:
-                    records.append(_lost(seed, config, f"error: {type(e).__name__}: {' '.join(str(e).split())[:300]}"))
-                progress(records[-1])
-        return records
-    finally:
-        if started:
-            ray.shutdown()
+    # Absolute paths: a worker's current folder is not this one.
+    config = dataclasses.replace(config, log_dir=config.log_dir and os.path.abspath(config.log_dir),
+                                 pictures_dir=config.pictures_dir and os.path.abspath(config.pictures_dir))
+    queue, pending, records = list(seeds), {}, []
+    with contextlib.ExitStack() as stack:
+        if not ray.is_initialized():
+            _connect(ray, address, workers)
+            stack.callback(ray.shutdown)
+        remote = ray.remote(num_cpus=1, max_retries=0)(_trial_on_ray)
+        try:
+            while queue or pending:
+                while queue and len(pending) < workers:
+                    seed = queue.pop(0)
+                    pending[remote.remote(seed, config, trial)] = seed
+                done, _ = ray.wait(list(pending), num_returns=1)
+                for ref in done:
+                    seed = pending.pop(ref)
+                    try:
+                        record = ray.get(ref)
+                    except ray.exceptions.RayError as e:
+                        log.warning("seed %d: the trial did not run: %s", seed, _one_line(e))
+                        record = _lost(seed, config, _ray_failure(e))
+                    records.append(record)
+                    progress(record)
+        finally:
+            for ref in pending:  # interrupted: stop the trials still running
+                ray.cancel(ref, force=True)
+    return records
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -247,6 +425,10 @@ def main(argv: list[str] | None = None) -> int:
     seeds = sorted({s for group in args.seeds for s in group})
     if args.json.exists() and args.json.is_dir():
         parser.error(f"--json {args.json} is a directory")
+    try:
+        engine, address = engine_and_address(args.engine, args.ray_address, os.environ)
+    except ValueError as e:
+        parser.error(str(e))
     configure_logging(args.log_level)
     log_dir = args.log_dir if args.log_dir is not None else args.json.parent / "logs"
     scene_options = {k: v for k, v in (("state", args.state), ("cloth_kind", args.cloth)) if v is not None}
@@ -272,9 +454,13 @@ def main(argv: list[str] | None = None) -> int:
             bar.write(f"seed {record['seed']}: {record.get('failure') or 'failed'}")
 
     start = time.perf_counter()
-    run = _run_ray if args.engine == "ray" else _run_local
     try:
-        records = [record for config in configs for record in run(seeds, config, args.workers, progress)]
+        records = []
+        for config in configs:
+            if engine == "ray":
+                records += _run_ray(seeds, config, args.workers, progress, address)
+            else:
+                records += _run_local(seeds, config, args.workers, progress)
     except RuntimeError as e:
         bar.close()
         print(f"{parser.prog}: error: {e}", file=sys.stderr)
@@ -285,7 +471,7 @@ def main(argv: list[str] | None = None) -> int:
         return 130
     bar.close()
     settings = {**trial_config_dict(configs[0]), "regrasps": [c.regrasp for c in configs] if unfold else None,
-                "engine": args.engine, "workers": args.workers,
+                "engine": engine, "ray_address": address, "workers": args.workers,
                 "wall_s": round(time.perf_counter() - start, 1)}
     rep = report(records, command, settings)
     write_json(args.json, rep)
@@ -294,7 +480,7 @@ def main(argv: list[str] | None = None) -> int:
         args.markdown.write_text(markdown(rep))
     s = rep["summary"]["success"]
     lo, hi = s["wilson_95"]
-    for name, u in s.get("by_regrasp", {}).items():
+    for name, u in rep["summary"].get("by_regrasp", {}).items():
         print(f"unfold, second corner by {name}: {u['success']['successes']}/{u['success']['n']} succeeded")
     print(f"{title}: {s['successes']}/{s['n']} trials succeeded ({100 * (s['rate'] or 0):.1f} %, "
           f"95 % Wilson interval {100 * lo:.1f}-{100 * hi:.1f} %) in {settings['wall_s']:.0f} s")

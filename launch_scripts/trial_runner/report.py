@@ -2,7 +2,8 @@
 
 REPORT.json: ``success_rate`` and ``trials`` (one record
 of ``trial.run_trial`` each, with at least ``seed`` and ``success``), plus the command,
-the settings, a Wilson 95 % interval and breakdowns by initial state and cloth.
+the settings, a Wilson 95 % interval, breakdowns by initial state and cloth, and the Ray
+nodes that ran the trials (when Ray did).
 """
 
 from __future__ import annotations
@@ -52,6 +53,18 @@ def failure_kind(reason: str) -> str:
     return re.sub(r"-?\d+(\.\d+)?", "#", reason)
 
 
+def nodes(records: list[dict]) -> list[dict]:
+    """The Ray nodes that ran the trials (records with a ``node``), in order of first use:
+    ``id``, ``ip``, ``host`` and ``trials`` (how many ran there); [] for a run without Ray's."""
+    used: dict[str, dict] = {}
+    for r in records:
+        node = r.get("node")
+        if node:
+            used.setdefault(node["id"], {"id": node["id"], "ip": node.get("ip"), "host": node.get("host"), "trials": 0})
+            used[node["id"]]["trials"] += 1
+    return list(used.values())
+
+
 def summarise(records: list[dict]) -> dict:
     """Success rates (with Wilson 95 % intervals), breakdowns and medians of a run.
 
@@ -88,6 +101,7 @@ def summarise(records: list[dict]) -> dict:
         "median_tracking_ms": median(t.get("tracking_ms") for t in timing),
         "median_planning_ms": median(t.get("planning_ms") for t in timing),
         "median_total_s": median(t.get("total_s") for t in timing),
+        "nodes": nodes(records),
     }
 
 
@@ -146,6 +160,7 @@ def markdown(rep: dict) -> str:
            f"{s['median_tracking_error_mm']} mm (mean over vertices)")]),
         (f"- median tracking {s['median_tracking_ms']} ms/frame, planning {s['median_planning_ms']} ms, "
          f"trial {s['median_total_s']} s"),
+        *_nodes_lines(s.get("nodes", [])),
         "",
         "| initial state | success |",
         "| --- | --- |",
@@ -172,6 +187,15 @@ def markdown(rep: dict) -> str:
     if s["failures"]:
         lines += ["| failure | trials |", "| --- | --- |", *[f"| {k} | {n} |" for k, n in s["failures"].items()], ""]
     return "\n".join(lines)
+
+
+def _nodes_lines(used: list[dict]) -> list[str]:
+    """The markdown line listing the Ray nodes that ran the trials, or none without Ray's."""
+    if not used:
+        return []
+    each = "; ".join(f"{n['host']} ({n['ip']}, node {n['id'][:12]}): {n['trials']} trial{'s' if n['trials'] > 1 else ''}"
+                     for n in used)
+    return [f"- ran on {len(used)} Ray node{'s' if len(used) > 1 else ''}: {each}"]
 
 
 def write_json(path: Path, content: dict) -> None:

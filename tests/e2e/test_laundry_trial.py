@@ -4,6 +4,7 @@ grasp, and a verdict that must agree with ground truth recomputed here independe
 import json
 import math
 import os
+import secrets
 import subprocess
 import sys
 from pathlib import Path
@@ -96,12 +97,17 @@ def test_a_grasp_at_the_cloth_centre_is_judged_a_failure(tmp_path):
 
 def test_one_trial_on_a_local_ray_instance(tmp_path):
     pytest.importorskip("ray")
+    # Ray 2.59 and later protect a new local instance with a token, by default one saved to
+    # ~/.ray/auth_token, which every later Ray on the machine then uses: this test's own instead.
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | {
+        "RAY_AUTH_MODE": "token", "RAY_AUTH_TOKEN": secrets.token_hex(32)}
     done = subprocess.run([sys.executable, "-m", "launch_scripts.trials", "--seeds", "2", "--engine", "ray",
                            "--json", str(tmp_path / "report.json"), "--quiet"], check=False, capture_output=True, text=True,
-                          timeout=360)
+                          timeout=360, env=env)
     assert done.returncode == 0, done.stderr[-2000:]
     (record,) = json.loads((tmp_path / "report.json").read_text())["trials"]
     assert record["seed"] == 2 and not record["failure"].startswith("error")
+    assert len(record["node"]["id"]) == 56 and record["node"]["ip"]
 
 
 def test_a_service_that_cannot_start_fails_the_trial_in_one_line_and_leaves_no_process(tmp_path, monkeypatch):

@@ -1,6 +1,8 @@
 """Judging trials by ground truth, Wilson intervals, the empty-table mask, reports, the runner's arguments."""
 
 import json
+import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -169,6 +171,12 @@ def test_failure_kind_drops_numbers_and_keeps_error_types():
     (["--seeds", "0", "--json", "r.json", "--workers", "0"], "argument --workers: expected a positive integer, got 0"),
     (["--seeds", "0", "--json", "r.json", "--mode", "middle"], "argument --kind/--mode: invalid choice: 'middle'"),
     (["--json", "r.json"], "the following arguments are required: --seeds"),
+    (["--seeds", "0", "--json", "r.json", "--engine", "local", "--ray-address", "head:6379"],
+     "error: --ray-address needs --engine ray (the local engine runs on this machine only)"),
+    (["--seeds", "0", "--json", "r.json", "--ray-address", "head"],
+     "argument --ray-address: expected HOST:PORT, ray://HOST:PORT or auto, got 'head'"),
+    (["--seeds", "0", "--json", "r.json", "--ray-address", "head:70000"],
+     "argument --ray-address: expected HOST:PORT, ray://HOST:PORT or auto, got 'head:70000'"),
 ])
 def test_trials_bad_arguments_exit_2_with_one_line(args, message, capsys):
     from launch_scripts.trials import main
@@ -180,6 +188,43 @@ def test_trials_bad_arguments_exit_2_with_one_line(args, message, capsys):
     assert out == ""
     lines = err.strip().splitlines()
     assert len(lines) == 1 and message in lines[0]
+
+
+def test_a_bad_ray_address_in_the_environment_is_one_line_naming_it(monkeypatch, capsys):
+    from launch_scripts.trials import main
+
+    monkeypatch.setenv("RAY_ADDRESS", "head:port")
+    with pytest.raises(SystemExit) as e:
+        main(["--seeds", "0", "--json", "r.json", "--engine", "ray"])
+    assert e.value.code == 2
+    assert capsys.readouterr().err == ("python -m launch_scripts.trials: error: RAY_ADDRESS: expected HOST:PORT, "
+                                       "ray://HOST:PORT or auto, got 'head:port'\n")
+
+
+@pytest.mark.parametrize("engine, option, environ, expected", [
+    (None, None, {}, ("local", None)),
+    (None, None, {"RAY_ADDRESS": "head:6379"}, ("local", None)),  # the local engine ignores RAY_ADDRESS
+    ("ray", None, {}, ("ray", None)),  # a local Ray instance
+    ("ray", None, {"RAY_ADDRESS": " head:6379 "}, ("ray", "head:6379")),
+    ("ray", None, {"RAY_ADDRESS": ""}, ("ray", None)),
+    (None, "head:6379", {}, ("ray", "head:6379")),  # the option implies the Ray engine...
+    ("ray", "ray://10.0.0.2:10001", {"RAY_ADDRESS": "other:1"}, ("ray", "ray://10.0.0.2:10001")),  # ...and wins
+    ("ray", "auto", {}, ("ray", "auto")),
+])
+def test_engine_and_ray_address_from_options_and_environment(engine, option, environ, expected):
+    from launch_scripts.trials import engine_and_address
+
+    assert engine_and_address(engine, option, environ) == expected
+
+
+@pytest.mark.parametrize("address, expected", [
+    ("head:6379", ("head", 6379)), ("ray://10.0.0.2:10001", ("10.0.0.2", 10001)), ("[::1]:6379", ("::1", 6379)),
+    ("head", None), ("head:0", None), (":6379", None), ("head:x", None), ("auto", None),
+])
+def test_host_and_port_of_a_ray_address(address, expected):
+    from launch_scripts.trials import _host_port
+
+    assert _host_port(address) == expected
 
 
 def test_trials_seed_ranges():
@@ -226,6 +271,63 @@ def test_a_trial_process_that_dies_is_a_failed_record_and_the_others_run(tmp_pat
     assert failure_kind(by_seed[1]["failure"]) == "error: WorkerDied"
     assert all(by_seed[s]["success"] for s in (0, 2, 3))
     assert len(by_seed[2]["payload"]) == 200_000
+
+
+# ----------------------------------------------------------------------------- Ray engine, without Ray
+
+
+def test_the_shipped_packages_are_the_distributions_packages_without_bytecode():
+    import tomllib
+
+    from launch_scripts.trials import SHIPPED_PACKAGES, _shipped_packages
+
+    pyproject = tomllib.loads((Path(__file__).resolve().parents[2] / "pyproject.toml").read_text())
+    include = pyproject["tool"]["setuptools"]["packages"]["find"]["include"]
+    assert sorted(SHIPPED_PACKAGES) == sorted(name.rstrip("*") for name in include)
+    with _shipped_packages() as runtime_env:
+        shipped = Path(runtime_env["working_dir"])
+        assert sorted(p.name for p in shipped.iterdir()) == sorted(SHIPPED_PACKAGES)
+        assert (shipped / "launch_scripts" / "trial_runner" / "trial.py").is_file()
+        assert not list(shipped.rglob("__pycache__")) and not list(shipped.rglob("*.pyc"))
+    assert not shipped.exists()
+
+
+def test_a_ray_failure_is_one_line_with_the_exception_the_task_raised():
+    from launch_scripts.trials import _ray_failure
+
+    class TaskError(Exception):
+        """Like Ray's RayTaskError: the task's own exception in ``cause``."""
+
+        def __init__(self, cause):
+            super().__init__("ray::_trial_on_ray() (pid=1, ip=10.0.0.2)\n  File ...")
+            self.cause = cause
+
+    assert _ray_failure(TaskError(ModuleNotFoundError("No module named 'pybullet'\ntraceback: ..."))) == (
+        "error: ModuleNotFoundError: No module named 'pybullet'")
+    assert _ray_failure(OSError("\nThe worker died unexpectedly.\nCheck the logs.")) == (
+        "error: OSError: The worker died unexpectedly.")
+
+
+def test_a_folder_a_node_cannot_make_falls_back_to_its_temporary_folder(tmp_path):
+    from launch_scripts.trials import _writable_here
+
+    (tmp_path / "a_file").write_text("")
+    assert _writable_here(str(tmp_path / "logs")) == str(tmp_path / "logs") and (tmp_path / "logs").is_dir()
+    assert _writable_here(str(tmp_path / "a_file" / "logs")) == str(Path(tempfile.gettempdir()) / "clothkit_trials" / "logs")
+    assert _writable_here(None) is None
+
+
+def test_the_report_lists_the_ray_nodes_that_ran_the_trials():
+    nodes = [{"id": "a" * 56, "ip": "10.0.0.1", "host": "head", "log_dir": "/x"},
+             {"id": "b" * 56, "ip": "10.0.0.2", "host": "worker", "log_dir": "/y"}]
+    records = [dict(RECORDS[0], node=nodes[0]), dict(RECORDS[1], node=nodes[1]), dict(RECORDS[2], node=nodes[0])]
+    rep = report(records, "python -m launch_scripts.trials --seeds 0 2 4 --json r.json", {"kind": "corner"})
+    assert rep["summary"]["nodes"] == [{"id": "b" * 56, "ip": "10.0.0.2", "host": "worker", "trials": 1},
+                                       {"id": "a" * 56, "ip": "10.0.0.1", "host": "head", "trials": 2}]
+    assert ("- ran on 2 Ray nodes: worker (10.0.0.2, node bbbbbbbbbbbb): 1 trial; "
+            "head (10.0.0.1, node aaaaaaaaaaaa): 2 trials") in markdown(rep)
+    without = report(RECORDS, "python -m launch_scripts.trials --seeds 0 2 4 --json r.json", {"kind": "corner"})
+    assert without["summary"]["nodes"] == [] and "Ray node" not in markdown(without)
 
 
 # ----------------------------------------------------------------------------- pictures
