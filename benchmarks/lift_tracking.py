@@ -35,6 +35,7 @@ from sim.ground_truth import vertex_errors  # noqa: E402
 VARIANTS = (
     ("trial tracker alone", {"lambda_l": 0.0}, False, False),
     ("+ stretch term", {}, False, False),
+    ("+ background, hold", {"lambda_l": 0.0}, True, True),
     ("+ stretch, background, hold", {}, True, True),
 )
 

@@ -59,8 +59,6 @@ from launch_scripts.cli import OneLineParser, add_log_level_argument, configure_
 from launch_scripts.trial_runner.report import markdown, report, write_json
 from launch_scripts.trial_runner.trial import (
     TASKS,
-    TRIAL_TRACKER,
-    UNFOLD_TRACKER,
     TrialConfig,
     run_trial,
     scene_record,
@@ -436,7 +434,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--task unfold grasps corners: --kind must be corner")
     unfold = args.task == "unfold"
     configs = [TrialConfig(task=args.task, regrasp=regrasp, kind=args.kind, observe_frames=args.frames,
-                           tracker=UNFOLD_TRACKER if unfold else TRIAL_TRACKER, log_dir=str(log_dir),
+                           log_dir=str(log_dir),
                            pictures_dir=None if args.pictures is None else str(args.pictures),
                            scene_options=scene_options)
                for regrasp in (dict.fromkeys(args.regrasp) if unfold else ["adjacent"])]

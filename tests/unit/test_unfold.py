@@ -137,3 +137,30 @@ def test_a_robot_hand_is_drawn_and_its_mask_sent_as_the_known_occluder():
         assert not (mask & scene.cloth_mask()).any()
         scene.reset()
         assert scene.hands == [] and scene.render().occluder_mask is None
+
+
+def _unfold_record(seed, regrasp, success, lift_mean):
+    return {"seed": seed, "task": "unfold", "regrasp": regrasp, "kind": "corner", "success": success,
+            "corner_success": True, "failure": "" if success else "the held corners do not share an edge",
+            "scene": {"state": "flat", "cloth": "towel"}, "timing": {"total_s": 30.0 + seed},
+            "tracking": {"lift_error_mm": {"mean": lift_mean, "p95": 3 * lift_mean},
+                         "second_plan_error_mm": None, "frames_tracked": 150}}
+
+
+def test_the_report_sets_the_ways_of_choosing_the_second_corner_side_by_side():
+    from launch_scripts.trial_runner.report import markdown, report
+
+    records = [_unfold_record(0, "adjacent", True, 40.0), _unfold_record(2, "adjacent", False, 60.0),
+               _unfold_record(0, "lowest", False, 90.0), _unfold_record(2, "lowest", False, 110.0)]
+    rep = report(records, "python -m launch_scripts.trials --task unfold", {"kind": "corner"})
+    by = rep["summary"]["by_regrasp"]
+    assert set(by) == {"adjacent", "lowest"}
+    assert by["adjacent"]["success"]["successes"] == 1 and by["lowest"]["success"]["successes"] == 0
+    assert by["adjacent"]["median_lift_error_mm"] == {"mean": 50.0, "p95": 150.0}
+    assert by["lowest"]["median_second_plan_error_mm"] == {"mean": None, "p95": None}
+    text = markdown(rep)
+    assert "unfolding by two adjacent corners" in text
+    assert "| adjacent | 1/2 = 50.0 %" in text and "| lowest | 0/2 = 0.0 %" in text
+    assert "first grasps at a corner" in text and "median corner error" not in text
+    corner_only = report([{**_unfold_record(0, "x", True, 1.0), "task": "corner"}], "c", {"kind": "corner"})
+    assert "by_regrasp" not in corner_only["summary"] and "median corner error" in markdown(corner_only)
