@@ -26,6 +26,9 @@ material coordinates, metres) and whether
 the cloth is lifted clear: every node at least ``clear_margin_m`` above the surface
 under it (table or floor) after settling.
 
+For tasks that watch the motion (the unfold trials), ``move_grippers`` moves grippers one
+camera frame at a time, calling back after each frame, and ``close_fingers`` closes one.
+
 Frames: plans arrive in the camera frame; ``plan_to_world`` maps them with the scene's
 ``T_world_cam`` (4, 4), camera optical frame to world (z up).
 """
@@ -240,7 +243,7 @@ def move_grippers(scene, moves, duration_s: float, on_frame: Callable[[], None] 
     on_frame : called after each frame's step, e.g. to render, publish and track it
 
     Each gripper moves along a straight line with a smooth start and stop (smoothstep:
-    its top speed 1.5 times the mean, no jerk at either end, as a robot's controller
+    zero speed at both ends, a top speed of 1.5 times the mean, as a robot's controller
     ramps its speed), which a cloth hanging from it follows without being flung.
     """
     n = max(1, math.ceil(float(duration_s) * scene.fps - 1e-9))

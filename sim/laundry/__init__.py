@@ -9,7 +9,9 @@ robot's controller policy and the judge of its grasp.
 - ``segment``: the cloth found against a picture of the empty table (the robot's view);
 - ``controller``: which grasp the robot executes (``lowest_point_when_held``,
   ``best_candidate``, ``default_controller``);
-- ``judge``: success by ground truth;
+- ``judge``: success by ground truth (``judge`` for one grasp, ``judge_unfold`` for two
+  corners that share an edge, held apart);
+- ``unfold``: the unfolding robot's motions (lift, second corner, stretch) and its arms' mounts;
 - ``pictures``: the plan drawn on its frame, the grasp before and after the lift.
 
 ``launch_scripts.trial_runner`` runs a trial with these through the ZeroMQ services;
@@ -35,7 +37,9 @@ What a seed draws (``laundry_spec``):
 - table: top 0.70-0.78 m above the floor, 1.2 m x 0.8 m, neutral grey;
 - camera: 1.0-1.3 m from the cloth, 50-70 degrees above the horizontal, azimuth within
   20 degrees of the table's front (-y), aim jittered by a few centimetres; Kinect-like
-  intrinsics, sensor noise on by default (``sim.noise``).
+  intrinsics, sensor noise on by default (``sim.noise``). The "room" view (``view="room"``,
+  the unfold task) stands 1.55-1.75 m back, 18-28 degrees up, to see the space above the
+  table too; it is drawn last, so the rest of the scene is the same in both views.
 
 Ground truth (material coordinates ``uv_m`` of ``sim.cloth_mesh``, metres on the flat
 cloth): the true corners (a towel's four corners; a T-shirt's hem corners and the two

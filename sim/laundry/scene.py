@@ -6,6 +6,7 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ipc.messages import RGBDFrame
 from perception.geometry import boundary_vertices, rotation_about_axis, transform_points
@@ -39,8 +40,6 @@ class RobotHand:
 
     def T_world_gripper(self) -> np.ndarray:
         """(4, 4) float64, the gripper frame to world, now."""
-        from scipy.spatial.transform import Rotation
-
         T = np.eye(4)
         T[:3, :3] = Rotation.from_quat(self.gripper.quat_xyzw).as_matrix()
         T[:3, 3] = self.gripper.position
