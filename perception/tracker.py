@@ -529,11 +529,7 @@ class MeshTracker:
         z = V0[:, 2]
         segment = segment_tracked(frame.depth_m, faces_mask(project(V0, K), faces, (h, w)),
                                   (float(z.min()), float(z.max())), cfg.segmentation, rgb=frame.rgb, colour=self._colour)
-        mask = segment.mask
-        if occluder is not None:
-            mask &= ~occluder
-        if self._background is not None:
-            mask &= differs_from_background(frame, self._background)
+        mask = self._object_only(segment.mask, frame)
         if not mask.any():
             return None
         obs = observe(frame, mask, cfg.depth_window_px, grey=grey, unsearched=segment.unsearched)
@@ -560,6 +556,15 @@ class MeshTracker:
         log.info("frame %d: object re-acquired by registration (confidence %.2f)", frame.seq, assessment.confidence)
         return self._estimate(frame, V, res.energies, res.iterations, assessment, t0, visible)
 
+    def _object_only(self, mask: np.ndarray, frame: RGBDFrame) -> np.ndarray:
+        """``mask`` (H, W) bool less what the object cannot be: pixels of a known occluder
+        (``frame.occluder_mask``) and, with a background, pixels that do not differ from it."""
+        if frame.occluder_mask is not None:
+            mask = mask & ~frame.occluder_mask
+        if self._background is not None:
+            mask = mask & differs_from_background(frame, self._background)
+        return mask
+
     def _reinitialise_on_segment(self, frame: RGBDFrame, t0: float) -> MeshEstimate | None:
         """A new mesh on the object segmented afresh (by its colour, else by depth); the
         estimate if it is not lost, else None, the tracker then left as it was."""
@@ -568,10 +573,7 @@ class MeshTracker:
             if self._colour is not None else np.zeros(frame.depth_m.shape, bool)
         if not mask.any():
             mask = find_object(frame.depth_m, frame.camera.K, cfg.segmentation, self._rng)
-        if frame.occluder_mask is not None:
-            mask &= ~frame.occluder_mask
-        if self._background is not None:
-            mask &= differs_from_background(frame, self._background)
+        mask = self._object_only(mask, frame)
         if not mask.any():
             return None
         # A cloth folds, so less of it may show, but it does not grow: a far larger surface
@@ -676,11 +678,7 @@ class MeshTracker:
         hidden_mask = faces_mask(project(V_pred, K), faces[behind], pred_mask.shape) if behind.any() else None
         segment = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation,
                                   hidden_mask, frame.rgb, self._colour)
-        mask = segment.mask
-        if occluder is not None:
-            mask &= ~occluder
-        if self._background is not None:
-            mask &= differs_from_background(frame, self._background)
+        mask = self._object_only(segment.mask, frame)
         if not mask.any():
             log.debug("frame %d: object not seen", frame.seq)
             self._V_prev, self._V = self._V, self._V.copy()
