@@ -96,9 +96,11 @@ def example_messages() -> dict[type, object]:
     )
     mask = np.zeros((camera.height, camera.width), dtype=np.uint8)
     mask[1:, 1:3] = 255
+    frame = m.RGBDFrame(rgb=rgb, depth_m=depth, camera=camera, timestamp_s=12.5, seq=42, occluder_mask=mask > 0,
+                        held_vertices=np.array([0], np.int32), held_points_m=np.array([[0.0, 0.0, 1.0]]))
     examples = [
         camera,
-        m.RGBDFrame(rgb=rgb, depth_m=depth, camera=camera, timestamp_s=12.5, seq=42, occluder_mask=mask > 0),
+        frame,
         estimate,
         corner,
         m.GraspRequest(request_id=3, max_candidates=2, kinds=("corner", "boundary"), estimate=estimate),
@@ -107,7 +109,9 @@ def example_messages() -> dict[type, object]:
         m.AdjacentCornersRequest(request_id=21, held_vertex=0, max_candidates=2),
         m.AdjacentCornersReply(request_id=21, estimate_seq=42, held_vertex=0, held_outline_vertex=0,
                                candidates=(ahead, behind)),
-        m.InitialiseRequest(request_id=7, mask=mask),
+        m.InitialiseRequest(request_id=7, mask=mask,
+                            background=m.RGBDFrame(rgb=rgb, depth_m=np.nan_to_num(depth), camera=camera,
+                                                   timestamp_s=2.0, seq=1)),
         m.OccluderMaskRequest(request_id=11, mask=mask, seq=42),
         m.ResetRequest(request_id=8),
         m.SetParametersRequest(request_id=9, parameters={"lambda_d": 0.6, "max_iterations": 20, "use_depth": True,

@@ -139,7 +139,7 @@ class RGBDFrame:
     timestamp_s: float = wire.field(wire.Float(), default=0.0)
     seq: int = wire.field(wire.Int(), default=0)
     occluder_mask: np.ndarray | None = wire.field(wire.Optional(wire.Array(("uint8",), 2)), default=None)
-    held_vertices: np.ndarray | None = wire.field(wire.Optional(wire.Array(("int32", "int64"), 1)), default=None)
+    held_vertices: np.ndarray | None = wire.field(wire.Optional(wire.Array(("int32",), 1)), default=None)
     held_points_m: np.ndarray | None = wire.field(wire.Optional(wire.Array(("float64", "float32"), 2)), default=None)
 
     def __post_init__(self):

@@ -12,6 +12,8 @@ These checks name the problem instead, as a kind the perception service counts:
   [``MIN_FOV_DEG``, ``MAX_FOV_DEG``], pixels more than ``MAX_PIXEL_ASPECT`` times longer
   than wide, principal point more than an image size outside the image, distortion
   coefficients beyond ``MAX_DISTORTION``);
+- ``bad_hold``: a held point (``RGBDFrame.held_points_m``) farther than ``MAX_DEPTH_M`` from
+  the camera, which the hold term would drag the mesh to;
 
 and, before a mesh is built, ``object_lattice_bound`` bounds the lattice the tracker lays
 over an object and ``spacing_px`` the size of its image windows, so that an object too
@@ -63,7 +65,7 @@ def check_camera(camera: CameraInfo) -> str | None:
 def check_frame(frame: RGBDFrame) -> tuple[str, str] | None:
     """``(kind, one line)`` for the first reason ``frame`` cannot be tracked, or None.
 
-    kind : "no_depth", "bad_depth" or "bad_camera" (see the module docstring)
+    kind : "no_depth", "bad_depth", "bad_camera" or "bad_hold" (see the module docstring)
     """
     depth = frame.depth_m
     measured = depth > 0  # NaN compares false: not measured
@@ -77,6 +79,12 @@ def check_frame(frame: RGBDFrame) -> tuple[str, str] | None:
     problem = check_camera(frame.camera)
     if problem is not None:
         return "bad_camera", f"frame {frame.seq}: {problem}"
+    if frame.held_points_m is not None and frame.held_points_m.size:
+        reach = np.linalg.norm(frame.held_points_m, axis=1)
+        k = int(np.argmax(reach))
+        if reach[k] > MAX_DEPTH_M:
+            return "bad_hold", (f"frame {frame.seq}: held point {k} is {reach[k]:.6g} m from the camera, beyond the "
+                                f"{MAX_DEPTH_M:g} m of any RGB-D sensor")
     return None
 
 

@@ -104,7 +104,12 @@ class FrameFuzzer:
             camera = self.camera(*depth.shape)
         elif kind == 2:
             depth = self.depth(depth)
-        return RGBDFrame(rgb=rgb, depth_m=depth, camera=camera, timestamp_s=seq / 30.0, seq=seq)
+        held = {}
+        if rng.random() < 0.2:  # what a robot says it holds: vertices the mesh may not have, points far or near
+            k = int(rng.integers(1, 4))
+            held = {"held_vertices": rng.integers(0, 800, k).astype(np.int32),
+                    "held_points_m": rng.normal(0.0, 1.0, (k, 3)) * 10.0 ** rng.uniform(-3, 4)}
+        return RGBDFrame(rgb=rgb, depth_m=depth, camera=camera, timestamp_s=seq / 30.0, seq=seq, **held)
 
     def mask(self) -> np.ndarray | None:
         rng = self.rng

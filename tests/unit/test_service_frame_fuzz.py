@@ -31,7 +31,8 @@ DOC = (Path(__file__).resolve().parents[2] / "docs" / "protocol.md").read_text()
 NAMED_KINDS = set(re.findall(r"^\| `(\w+)` \|", DOC[DOC.index("| kind | cause |"):DOC.index("`messages_malformed`, each")],
                              flags=re.M)) - {"internal"}
 #: What an estimate's energies may hold (docs/protocol.md, MeshEstimate.energies).
-ENERGY_NAMES = {"smoothness", "correspondence", "depth", "boundary", "motion_prior", "total", "inliers"}
+ENERGY_NAMES = {"smoothness", "correspondence", "depth", "boundary", "motion_prior", "stretch", "hold", "total",
+                "inliers"}
 
 
 def frame_bytes(depth: np.ndarray) -> list[bytes]:
@@ -71,6 +72,10 @@ def test_the_checks_name_what_is_wrong():
     assert kind == "bad_depth" and message.startswith("frame 3: depth from") and "wrong depth_scale" in message
     off = type(CAMERA)(160, 120, np.array([[100.0, 0, 1e6], [0, 100.0, 60], [0, 0, 1.0]]))
     assert "principal point" in check_camera(off)
+    flung = RGBDFrame(good.rgb, good.depth_m, good.camera, seq=4, held_vertices=np.array([0, 1]),
+                      held_points_m=np.array([[0.0, 0.0, 1.0], [0.0, 5e3, 1.0]]))
+    assert check_frame(flung) == ("bad_hold", "frame 4: held point 1 is 5000 m from the camera, beyond the 100 m of "
+                                              "any RGB-D sensor")
 
 
 def fuzz(core: PerceptionCore, n: int) -> dict:
@@ -105,7 +110,9 @@ def test_every_frame_is_tracked_or_rejected_with_a_named_kind():
     energies_row = next(line for line in DOC.splitlines() if line.startswith("| `energies` |"))
     assert all(f"`{name}`" in energies_row for name in ENERGY_NAMES)
     # The fuzz reaches every check and still tracks good frames between the bad ones.
-    assert {"no_depth", "bad_depth", "bad_camera", "camera_changed", "init_failed"} <= set(rejected), rejected
+    assert {"no_depth", "bad_depth", "bad_camera", "bad_hold", "camera_changed", "init_failed", "tracker"} \
+        <= set(rejected), rejected
+    assert "hold" in outcome["energies"]  # frames that held a vertex the mesh has were tracked with it
     assert outcome["tracked"] > 20 and outcome["refused"] > 0, outcome
     assert core.counters.frames_taken == core.counters.processed + sum(rejected.values()) + outcome["idle"]
     assert core.counters.processed == outcome["tracked"]
