@@ -2,8 +2,9 @@
 
 REPORT.json: ``success_rate`` and ``trials`` (one record
 of ``trial.run_trial`` each, with at least ``seed`` and ``success``), plus the command,
-the settings, a Wilson 95 % interval, breakdowns by initial state and cloth, and the Ray
-nodes that ran the trials (when Ray did).
+the settings, a Wilson 95 % interval, breakdowns by initial state and cloth (and, for
+unfold trials, by how the second corner was chosen: ``by_regrasp``), and the Ray nodes that
+ran the trials (when Ray did).
 """
 
 from __future__ import annotations
