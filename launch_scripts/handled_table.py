@@ -2,16 +2,20 @@
 
 For each handled scene (``sim.scenes.HANDLED_SCENES``) and seed, the scene is recorded twice:
 with its occluder drawn, and as its twin without it (same physics, same noise draws). Each
-of the default tracker and the realtime preset then tracks:
+tracker of ``PRESETS`` (the defaults, the realtime preset, the defaults without the stretch
+term) then tracks:
 
 - ``clear``: the twin, every frame;
 - ``occluder``: the scene with its occluder, every frame (30 Hz);
 - ``dropped``: the same frames with every other one dropped (15 Hz, timestamps kept);
 
-the last two once without and once with the occluder's exact mask in the frames
-(``RGBDFrame.occluder_mask``, "known masks"). Every run starts from the true mask of the
-cloth as seen in its first frame (without what the occluder hides), so the table measures
-tracking, not the first frame's segmentation.
+the last two three times, by what the frames tell the tracker (``MASKS``): nothing
+("unknown"); the occluder's exact mask (``RGBDFrame.occluder_mask``, "known"); everything
+a robot knows of its own doing ("robot"): that mask, the cloth vertex its closed gripper
+holds and where the fingers are (``RGBDFrame.held_vertices``), and the empty workspace
+seen before the cloth was there (the tracker's background). Every run starts from the true
+mask of the cloth as seen in its first frame (without what the occluder hides), so the
+table measures tracking, not the first frame's segmentation.
 Scores (``sim.evaluation.handled``) are pooled over the seeds in the table; the JSON keeps
 every seed's scores and per-frame series.
 """
@@ -43,13 +47,19 @@ from sim.evaluation.handled import (
 log = logging.getLogger("launch_scripts.evaluate")
 
 BEGIN, END = "<!-- handled-results:begin -->", "<!-- handled-results:end -->"
-PRESETS = {"default": TrackerConfig, "realtime": TrackerConfig.realtime}
-#: (variant, known masks) in the table's order; the twin has nothing to mask
-VARIANTS = (("clear", None), ("occluder", False), ("occluder", True), ("dropped", False), ("dropped", True))
+
+#: The trackers compared: the defaults, the realtime preset, and the defaults without the
+#: stretch term (the paper's energy, which lets a hidden part shrink).
+PRESETS = {"default": TrackerConfig, "realtime": TrackerConfig.realtime,
+           "no-stretch": lambda: TrackerConfig(lambda_l=0.0)}
+#: What the frames tell the tracker of the occluder and the robot's grasp, in the table's order.
+MASKS = ("unknown", "known", "robot")
+#: (variant, masks) in the table's order; the twin has nothing to mask
+VARIANTS = (("clear", None),) + tuple((variant, masks) for variant in ("occluder", "dropped") for masks in MASKS)
 
 
-def variant_key(variant: str, known: bool | None) -> str:
-    return variant if known is None else f"{variant}/{'known' if known else 'unknown'}"
+def variant_key(variant: str, masks: str | None) -> str:
+    return variant if masks is None else f"{variant}/{masks}"
 
 
 def evaluate_handled(name: str, seed: int, noise: bool, fig_dir: Path | None, progress: bool = True) -> dict:
@@ -62,19 +72,22 @@ def evaluate_handled(name: str, seed: int, noise: bool, fig_dir: Path | None, pr
            "cloth_hidden_fraction": [round(float(x), 4) for x in hidden], "runs": {}, "series": {}}
     scores: dict[tuple, HandledScore] = {}
     for preset, make_config in PRESETS.items():
-        for variant, known in VARIANTS:
+        for variant, masks in VARIANTS:
             rec = recs[variant]
-            frames = rec.known_occluder_frames() if known else rec.frames
-            label = f"{name} s{seed} {preset} {variant_key(variant, known)}"
-            estimates, failure = track_frames(frames, make_config(), rec.masks[0], label, progress)
-            scores[preset, variant, known] = score_run(rec, estimates, failure)
-        for variant, known in VARIANTS:
-            score = scores[preset, variant, known]
+            frames = rec.known_occluder_frames() if masks in ("known", "robot") else rec.frames
+            robot = masks == "robot"
+            label = f"{name} s{seed} {preset} {variant_key(variant, masks)}"
+            estimates, failure = track_frames(frames, make_config(), rec.masks[0], label, progress,
+                                              background=rec.background if robot else None,
+                                              grips=rec.grips if robot else None)
+            scores[preset, variant, masks] = score_run(rec, estimates, failure)
+        for variant, masks in VARIANTS:
+            score = scores[preset, variant, masks]
             summary = score.summary()
             if variant == "occluder":  # the frames the dropped variant keeps, for its ratio to full rate
                 summary["even_frames_mean_mm"] = score.summary(np.arange(0, score.n_frames, 2)).get("mean_mm")
-            out["runs"].setdefault(preset, {})[variant_key(variant, known)] = summary
-            out["series"].setdefault(preset, {})[variant_key(variant, known)] = score.series()
+            out["runs"].setdefault(preset, {})[variant_key(variant, masks)] = summary
+            out["series"].setdefault(preset, {})[variant_key(variant, masks)] = score.series()
     if fig_dir is not None:
         _figures(name, seed, recs, scores, hidden, fig_dir)
     return out
@@ -84,16 +97,16 @@ def _figures(name: str, seed: int, recs: dict[str, SceneRecording], scores: dict
              fig_dir: Path) -> None:
     times = {v: np.array([f.timestamp_s for f in rec.frames]) for v, rec in recs.items()}
     runs = {}
-    for variant, known in VARIANTS:
-        score = scores["default", variant, known]
+    for variant, masks in VARIANTS:
+        score = scores["default", variant, masks]
         t = times[variant][:score.n_frames]
-        runs[variant_key(variant, known)] = {"time_s": t, "mean_mm": score.frame_mean_mm(),
+        runs[variant_key(variant, masks)] = {"time_s": t, "mean_mm": score.frame_mean_mm(),
                                              "confidence": score.confidence, "lost": score.lost}
     error_with_occlusion(fig_dir / f"handled_error_{name}_s{seed}.png",
                          f"{name}, seed {seed}, default tracker (wrong: > {WRONG_MM:.0f} mm; confident: >= {CONFIDENT})",
                          runs, times["occluder"], hidden, WRONG_MM, CONFIDENT)
-    for known in (False, True):
-        score = scores["default", "occluder", known]
+    for masks in MASKS:
+        score = scores["default", "occluder", masks]
         if score.n_frames == 0:
             continue
         last = score.n_frames - 1
@@ -102,7 +115,7 @@ def _figures(name: str, seed: int, recs: dict[str, SceneRecording], scores: dict
         if len(hidden_now):
             picks += [int(hidden_now[0]), int(hidden_now[np.argmax(hidden[hidden_now])]), int(hidden_now[-1])]
         picks = sorted(set(min(p, last) for p in picks))
-        overlay_strip(fig_dir / f"handled_overlay_{name}_s{seed}_{'known' if known else 'unknown'}.png",
+        overlay_strip(fig_dir / f"handled_overlay_{name}_s{seed}_{masks}.png",
                       recs["occluder"].frames, score.estimates, picks,
                       region=np.logical_or.reduce(recs["occluder"].masks))
 
@@ -116,20 +129,20 @@ def pooled_rows(results: dict) -> list[dict]:
     (scene -> seed -> evaluate_handled's output)."""
     rows = []
     for name, by_seed in results.items():
-        for variant, known in VARIANTS:
+        for variant, masks in VARIANTS:
             for preset in PRESETS:
-                key = variant_key(variant, known)
+                key = variant_key(variant, masks)
                 runs = [r["runs"][preset] for r in by_seed.values()]
                 mine = [r[key] for r in runs]
                 scored = [m for m in mine if m.get("frames")]
-                row = {"scene": name, "variant": variant, "masks": known, "preset": preset, "seeds": len(mine),
+                row = {"scene": name, "variant": variant, "masks": masks, "preset": preset, "seeds": len(mine),
                        "failures": [m["failure"] for m in mine if m.get("failure")]}
                 if scored:
                     row["mean_mm"] = float(np.mean([m["mean_mm"] for m in scored]))
                     row["p95_mm"] = float(np.mean([m["p95_mm"] for m in scored]))
                     to_twin = [_ratio(m.get("mean_mm"), r["clear"].get("mean_mm")) for m, r in zip(mine, runs)]
                     if variant == "dropped":
-                        full = variant_key("occluder", known)
+                        full = variant_key("occluder", masks)
                         to_full = [_ratio(m.get("mean_mm"), r[full].get("even_frames_mean_mm")) for m, r in zip(mine, runs)]
                         row["to_full_rate"] = [x for x in to_full if x is not None]
                     if variant != "clear":
@@ -161,9 +174,13 @@ def markdown(results: dict, seeds: list[int], noises: tuple) -> str:
              "with wrist and arm grasps a hanging cloth's bottom corner, lifts it and carries it sideways), "
              "`table_lift` (a gripper lifts a cloth lying on a table by one corner at 0.3-0.5 m/s until it hangs). "
              "Variants: `clear` is the same scene without the occluder drawn (same cloth motion); `occluder` "
-             "every frame at 30 Hz; `dropped` every other frame (15 Hz, true timestamps). Masks: whether the "
-             "frames carry the occluder's exact mask (`RGBDFrame.occluder_mask`). Every run starts from the true "
-             "mask of the cloth as seen in its first frame.", "",
+             "every frame at 30 Hz; `dropped` every other frame (15 Hz, true timestamps). Masks: what the frames "
+             "tell the tracker: `unknown` nothing; `known` the occluder's exact mask (`RGBDFrame.occluder_mask`); "
+             "`robot` what a robot knows of its own doing: that mask, the cloth vertex its closed gripper holds "
+             "and where its fingers are (`RGBDFrame.held_vertices`), and the empty workspace seen before the cloth "
+             "was there (the tracker's background). Every run starts from the true mask of the cloth as seen in "
+             "its first frame. Presets: `default` (`TrackerConfig()`), `realtime` (`TrackerConfig.realtime()`), "
+             "`no-stretch` (the defaults without the stretch term, `lambda_l` = 0).", "",
              "Columns, pooled over the seeds: error = material-point error, mean / 95th percentile in mm (means "
              "over seeds); ÷ clear = mean error over the clear twin's (mean over seeds, worst seed); ÷ full rate "
              "= the dropped run's mean error over the full-rate run's on the same frames; occluded area = area of "
@@ -179,7 +196,7 @@ def markdown(results: dict, seeds: list[int], noises: tuple) -> str:
              "wrong & confident | ms |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
-        masks = "—" if r["masks"] is None else ("known" if r["masks"] else "unknown")
+        masks = r["masks"] or "—"
         head = f"| {r['scene']} | {r['variant']} | {masks} | {r['preset']} | "
         if "mean_mm" not in r:
             lines.append(head + "failed: " + "; ".join(r["failures"]) + " | | | | | | |")

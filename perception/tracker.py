@@ -108,7 +108,8 @@ class TrackingError(ValueError):
 
 @dataclass(frozen=True)
 class TrackerConfig:
-    """Every knob of the tracker. Weights default to the paper's.
+    """Every knob of the tracker. The paper's four weights default to the paper's values; the
+    terms added here (motion prior, stretch, hold) have defaults measured in docs/results.md.
 
     spacing_m : canonical mesh edge length, metres (0.03 gives ~370 vertices on a 60x45 cm cloth);
         0 (default) chooses it from the object in the first frame, for about ``target_vertices``
@@ -138,7 +139,7 @@ class TrackerConfig:
     occlusion_margin_m : a vertex is hidden when the measured surface at its pixel is this much nearer
     lambda_m : weight of the motion prior that carries hidden and unobserved vertices
     lambda_l : weight of the stretch term that keeps the mesh's edge lengths (0: the paper's
-        energy, whose smoothness lets a mesh shrink)
+        energy, whose smoothness lets a mesh shrink onto the part of the object still seen)
     lambda_h : weight of the hold term: vertices the robot holds (``RGBDFrame.held_vertices``)
         stay at its grippers (``RGBDFrame.held_points_m``)
     coarse_motion : before each frame's minimisation, also consider the last mesh unmoved and
@@ -179,8 +180,8 @@ class TrackerConfig:
     depth_outlier_m: float = 0.08
     occlusion_margin_m: float = 0.08
     lambda_m: float = 1.0
-    lambda_l: float = 0.0
-    lambda_h: float = 10.0
+    lambda_l: float = 5.0
+    lambda_h: float = 100.0
     coarse_motion: bool = True
     boundary_gate_m: float = 0.06
     velocity_prediction: float = 0.5
@@ -267,6 +268,7 @@ class MeshTracker:
         self._background_given: RGBDFrame | None = None
         self._good_V = None  # (N, 3) the last estimate that was not lost
         self._rest_lengths = None  # (E,) edge lengths, metres, of the mesh as laid on the object
+        self._stretch: StretchTerm | None = None  # the stretch term of those lengths
         self.lost_streak = 0  # consecutive lost frames
         self.reacquisitions = 0  # times the object was found again after being lost
         self.last_assessment: Assessment | None = None
@@ -401,6 +403,7 @@ class MeshTracker:
         self._registration.build(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
         self._good_V = V
         self._rest_lengths = np.linalg.norm(V[self._edges[:, 0]] - V[self._edges[:, 1]], axis=1)
+        self._stretch = StretchTerm(self._edges, self._rest_lengths, n_vertices=len(V))
         assessment = self._assess(V, frame, visible, obs.mask)
         log.info("initialised mesh: %d vertices, %d faces, %d boundary, %d features", mesh.n_vertices,
                  len(mesh.faces), len(mesh.boundary), self._corr.n_model if self._corr else 0)
@@ -446,8 +449,8 @@ class MeshTracker:
             terms.append((cfg.lambda_b, self._boundary_term(obs, self._g0, observed)))
         if observed is not None and prior is not None and cfg.lambda_m > 0 and not observed.all():
             terms.append((cfg.lambda_m, MotionPriorTerm.around(self._edges, ~observed, prior)))
-        if cfg.lambda_l > 0 and self._rest_lengths is not None:
-            terms.append((cfg.lambda_l, StretchTerm(self._edges, self._rest_lengths)))
+        if cfg.lambda_l > 0 and self._stretch is not None:
+            terms.append((cfg.lambda_l, self._stretch))
         if frame is not None and frame.held_vertices is not None and frame.held_vertices.size and cfg.lambda_h > 0:
             terms.append((cfg.lambda_h, HoldTerm(frame.held_vertices.astype(np.int64), frame.held_points_m)))
         return terms

@@ -121,13 +121,15 @@ class PhysicsScene:
         """(V, 3) float64 cloth vertices now, metres, camera optical frame (the ground truth)."""
         return self.virtual_camera.world_to_camera(self.physics.cloth_vertices())
 
-    def _sensed(self, rgb: np.ndarray, depth_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _sensed(self, rgb: np.ndarray, depth_m: np.ndarray,
+                rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
         """An exact image as the sensor gives it: with depth and then colour noise when the
-        scene has noise (``sim.noise``), drawn from the scene's noise stream."""
+        scene has noise (``sim.noise``), drawn from ``rng`` (default: the scene's noise stream)."""
         if not self.noise:
             return rgb, depth_m
-        depth_m = add_depth_noise(depth_m, self.camera.K, self.noise_model, self._noise_rng)
-        rgb = add_colour_noise(rgb, self.noise_model.colour_sigma, self._noise_rng)
+        rng = self._noise_rng if rng is None else rng
+        depth_m = add_depth_noise(depth_m, self.camera.K, self.noise_model, rng)
+        rgb = add_colour_noise(rgb, self.noise_model.colour_sigma, rng)
         return rgb, depth_m
 
 

@@ -707,9 +707,11 @@ class ClothScene(PhysicsScene):
         """Rebuild the world from ``seed`` (default: the last seed) and settle it to frame 0."""
         if seed is not None:
             self.seed = check_seed(seed)
-        scene_seq, noise_seq = np.random.SeedSequence(self.seed).spawn(2)
+        # the background has its own noise stream: taking it leaves the frames' noise draws as they are
+        scene_seq, noise_seq, background_seq = np.random.SeedSequence(self.seed).spawn(3)
         self.spec = self._build(np.random.default_rng(scene_seq), self.camera)
         self._noise_rng = np.random.default_rng(noise_seq)
+        self._background_noise_rng = np.random.default_rng(background_seq)
         self.close()
         spec = self.spec
         n_grippers = len(spec.gripper_poses(0.0))
@@ -757,6 +759,22 @@ class ClothScene(PhysicsScene):
             if round(event.time_s * self.fps) == self.frame_index:
                 at = self.physics.cloth_vertices()[event.vertex]
                 self.physics.grippers[event.gripper].close_on(self.physics.nodes_near(at, GRASP_RADIUS_M))
+
+    def robot_grips(self) -> dict[int, np.ndarray]:
+        """Where the robot's closed grippers hold the cloth now: gripper number -> (3,) fingertip
+        centre, metres, camera optical frame (the holders a cloth hangs from are not the robot's)."""
+        held = {}
+        for i, gripper in enumerate(self.physics.grippers):
+            if i >= len(self.spec.grasp_vertices) and gripper.is_closed:
+                held[i] = self.virtual_camera.world_to_camera(gripper.position[None])[0]
+        return held
+
+    def render_empty(self) -> RGBDFrame:
+        """The same view without the cloth and the occluders: the empty workspace, as a robot
+        would capture it before the cloth is put there (with noise if the scene has it)."""
+        image = self.virtual_camera.render_rigid(self.physics)
+        rgb, depth = self._sensed(image.rgb, image.depth_m, self._background_noise_rng)
+        return RGBDFrame(rgb=rgb, depth_m=depth, camera=self.camera, timestamp_s=self.time_s, seq=self.frame_index)
 
     def occluder_mesh_world(self) -> SolidMesh | None:
         """The occluders the script places now (world frame), drawn or not; None when there are none."""

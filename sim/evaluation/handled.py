@@ -22,12 +22,14 @@ worst frame is taken among frames whose hidden faces make up at least ``WORST_AR
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from dataclasses import dataclass, field
 
 import numpy as np
 from tqdm import tqdm
 
+from ipc.messages import MeshEstimate, RGBDFrame
 from perception.geometry import face_areas
 from perception.tracker import MeshTracker, TrackerConfig
 from sim.evaluation.runs import SceneRecording
@@ -132,22 +134,53 @@ class HandledScore:
 
 
 def track_frames(frames: list, config: TrackerConfig, init_mask: np.ndarray, label: str = "tracker",
-                 progress: bool = True) -> tuple[list, str]:
+                 progress: bool = True, background: RGBDFrame | None = None,
+                 grips: list | None = None) -> tuple[list, str]:
     """Run a fresh MeshTracker over ``frames`` (initialised on ``init_mask`` (H, W) bool).
 
+    background : the empty workspace from the same camera, given at initialisation, or None
+    grips : None, or per frame the robot's closed grippers (``SceneRecording.grips``): each
+        holds the mesh vertex nearest to it when it closed (bound again on a mesh the tracker
+        builds anew), and the frames say so (``RGBDFrame.held_vertices``), as a robot that
+        knows what it holds and where its fingers are would send them
     returns (MeshEstimates, failure): the estimates up to the first frame the tracker raised
     on, and that error as one line ("" when every frame was tracked)
     """
     tracker = MeshTracker(config)
-    estimates = []
+    estimates: list = []
+    held: dict[int, int] = {}  # gripper number -> mesh vertex it holds
     for i, frame in enumerate(tqdm(frames, desc=label, unit="frame", disable=not progress, leave=False)):
         try:
-            estimates.append(tracker.initialise(frame, mask=init_mask) if i == 0 else tracker.track(frame))
+            if i == 0:
+                estimates.append(tracker.initialise(frame, mask=init_mask, background=background))
+                continue
+            if grips:
+                frame = _holding(frame, grips[i], held, estimates[-1])
+            estimate = tracker.track(frame)
+            if not np.array_equal(estimate.canonical, estimates[-1].canonical):
+                held.clear()  # a new mesh: its vertex ids say nothing of the old one's
+            estimates.append(estimate)
         except Exception as e:  # a tracker failure is a result to report, not a reason to stop the evaluation
             failure = f"frame {i}: {type(e).__name__}: {e}".splitlines()[0]
             log.warning("%s: %s", label, failure)
             return estimates, failure
     return estimates, ""
+
+
+def _holding(frame: RGBDFrame, grips: dict, held: dict, previous: MeshEstimate) -> RGBDFrame:
+    """``frame`` with the held vertices of the grippers in ``grips`` (binding in ``held`` the
+    ones that just closed to the vertex of ``previous`` nearest to them)."""
+    for gripper in list(held):
+        if gripper not in grips:
+            del held[gripper]  # opened
+    if not grips:
+        return frame
+    for gripper, point in grips.items():
+        if gripper not in held:
+            held[gripper] = int(np.argmin(np.linalg.norm(previous.vertices - point, axis=1)))
+    order = sorted(grips)
+    return dataclasses.replace(frame, held_vertices=np.array([held[g] for g in order], np.int32),
+                               held_points_m=np.stack([grips[g] for g in order]).astype(np.float64))
 
 
 def score_run(rec: SceneRecording, estimates: list, failure: str = "") -> HandledScore:

@@ -43,6 +43,9 @@ class SceneRecording:
     occluder_depths : list of (H, W) float32 metres, the occluder's exact depth where it is
         seen, 0 elsewhere; empty as ``occluder_masks``
     frame_step : 1, or k when only every k-th simulated frame was kept (timestamps stay true)
+    grips : list of dicts, per frame where the robot's closed grippers are (gripper number ->
+        (3,) fingertip centre, camera frame; ``ClothScene.robot_grips``); empty when not kept
+    background : RGBDFrame of the empty workspace from the same camera, or None
     """
 
     name: str
@@ -55,6 +58,8 @@ class SceneRecording:
     occluder_masks: list = field(default_factory=list)
     occluder_depths: list = field(default_factory=list)
     frame_step: int = 1
+    grips: list = field(default_factory=list)
+    background: RGBDFrame | None = None
 
     def every(self, step: int) -> SceneRecording:
         """The same recording with only every ``step``-th frame (from the first), as a camera
@@ -64,7 +69,7 @@ class SceneRecording:
         k = int(step)
         return SceneRecording(self.name, self.seed, self.noise, self.frames[::k], self.gt_vertices[::k],
                               self.gt_faces, self.masks[::k], self.occluder_masks[::k], self.occluder_depths[::k],
-                              self.frame_step * k)
+                              self.frame_step * k, self.grips[::k], self.background)
 
     def known_occluder_frames(self) -> list:
         """The frames carrying the exact occluder mask (``RGBDFrame.occluder_mask``), as a robot
@@ -116,20 +121,23 @@ def record_scene(name: str, seed: int = 0, noise: bool = True, n_frames: int | N
     """
     from sim.scenes import make_scene  # PyBullet only when a scene is actually run
 
-    frames, gts, masks, occluder_masks, occluder_depths = [], [], [], [], []
+    frames, gts, masks, occluder_masks, occluder_depths, grips = [], [], [], [], [], []
     with make_scene(name, seed=seed, noise=noise, occluders=occluders) as scene:
+        background = scene.render_empty()
         total = scene.n_frames if n_frames is None else int(n_frames)
         for frame in tqdm(scene.frames(total), total=total, desc=f"sim {name}", unit="frame",
                           disable=not progress, leave=False):
             frames.append(frame)
             gts.append(scene.cloth_vertices_cam())
             masks.append(scene.cloth_mask())
+            grips.append(scene.robot_grips())
             if scene.has_occluders and occluders:  # a twin draws none: nothing to keep
                 seen = scene.occluder_mask()
                 occluder_masks.append(seen)
                 occluder_depths.append(np.where(seen, scene.exact_depth_m(), np.float32(0.0)))
         faces = np.asarray(scene.faces)
-    return SceneRecording(name, seed, noise, frames, np.stack(gts), faces, masks, occluder_masks, occluder_depths)
+    return SceneRecording(name, seed, noise, frames, np.stack(gts), faces, masks, occluder_masks, occluder_depths,
+                          grips=grips, background=background)
 
 
 def track_recording(rec: SceneRecording, config: TrackerConfig, label: str = "tracker",

@@ -35,6 +35,8 @@ def _seed(scale):
             "occluder/known": {**_summary(3.0 * scale, area=0.9), "even_frames_mean_mm": 3.0 * scale},
             "dropped/unknown": _summary(10.0 * scale, frames=5, lost=2, area=0.4),
             "dropped/known": _summary(3.0 * scale, frames=5, confident_wrong=1, area=0.9),
+            "occluder/robot": {**_summary(2.5 * scale, area=1.0), "even_frames_mean_mm": 2.0 * scale},
+            "dropped/robot": _summary(3.0 * scale, frames=5, area=0.95),
         }
     return {"runs": runs}
 
@@ -45,12 +47,14 @@ def test_rows_pool_seeds_and_take_each_ratio_against_its_reference():
     by_key = {(r["variant"], r["masks"], r["preset"]): r for r in rows}
     clear = by_key["clear", None, "default"]
     assert clear["mean_mm"] == pytest.approx(3.0) and "to_twin" not in clear
-    occluded = by_key["occluder", False, "default"]
+    occluded = by_key["occluder", "unknown", "default"]
     assert occluded["to_twin"] == pytest.approx([3.0, 3.0]) and occluded["area_ratio"] == pytest.approx(0.5)
-    dropped = by_key["dropped", False, "realtime"]
+    dropped = by_key["dropped", "unknown", "realtime"]
     assert dropped["to_full_rate"] == pytest.approx([2.0, 2.0]) and dropped["to_twin"] == pytest.approx([5.0, 5.0])
     assert dropped["lost_frames"] == 4 and dropped["frames"] == 10
-    assert by_key["dropped", True, "default"]["wrong_confident_frames"] == 2
+    assert by_key["dropped", "known", "default"]["wrong_confident_frames"] == 2
+    robot = by_key["dropped", "robot", "default"]
+    assert robot["to_full_rate"] == pytest.approx([1.5, 1.5]) and robot["area_ratio"] == pytest.approx(0.95)
 
 
 def test_the_handled_section_leaves_the_paper_table_alone(tmp_path):
@@ -65,4 +69,5 @@ def test_the_handled_section_leaves_the_paper_table_alone(tmp_path):
     write_section(path, text.replace("10.0 / 20.0", "9.0 / 18.0"), HANDLED_BEGIN, HANDLED_END)
     out = path.read_text()
     assert out.startswith(paper) and out.count(HANDLED_BEGIN) == 1 and "9.0 / 18.0" in out and "10.0 / 20.0" not in out
-    assert variant_key("dropped", True) == "dropped/known" and variant_key("clear", None) == "clear"
+    assert "| table_lift | occluder | robot | realtime | 2.5 / 5.0 | 1.25 |" in text
+    assert variant_key("dropped", "known") == "dropped/known" and variant_key("clear", None) == "clear"

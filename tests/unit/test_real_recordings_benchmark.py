@@ -49,7 +49,8 @@ def test_scores_a_tracked_sheet_and_writes_json_and_pictures(data, tmp_path, cap
     assert run["config"]["spacing_m"] == 0.05 and run["config"]["features"] == "klt"
     s = run["summary"]
     assert s["frames"] == 4 and s["frames_with_mask"] == 4 and s["lost_frames"] == 0
-    assert s["coverage_min"] > 0.85 and s["on_mask_min"] > 0.95 and s["frames_meeting_target"] == 4
+    # the mesh keeps its size (stretch term) and follows the sheet to about a frame's motion (3 px)
+    assert s["coverage_min"] > 0.9 and s["on_mask_min"] > 0.9 and s["frames_meeting_target"] == 4
     assert [f["frame"] for f in run["frames"]] == [0, 1, 2, 3]
     assert Path(run["picture"]).is_file()
     assert "sheet" in capsys.readouterr().out

@@ -6,7 +6,7 @@ import pytest
 from ipc.messages import CameraInfo, MeshEstimate, RGBDFrame
 from sim.cloth_mesh import rectangle_cloth
 from sim.evaluation import SceneRecording
-from sim.evaluation.handled import CONFIDENT, WRONG_MM, cloth_hidden_fraction, score_run
+from sim.evaluation.handled import CONFIDENT, WRONG_MM, _holding, cloth_hidden_fraction, score_run
 from sim.ground_truth import hidden_behind_occluder
 
 W, H = 100, 80
@@ -123,3 +123,23 @@ def test_every_keeps_every_other_frame_with_its_truth():
     assert half.frames[1].occluder_mask is None
     with pytest.raises(ValueError, match="positive integer step"):
         rec.every(0)
+
+
+def test_a_closing_gripper_holds_the_vertex_nearest_to_it_until_it_opens():
+    rec, mesh = _recording()
+    previous = _estimate(rec.gt_vertices[0], mesh)
+    near = int(np.argmin(np.linalg.norm(rec.gt_vertices[0] - [0.1, 0.05, 1.5], axis=1)))
+    held: dict = {}
+    assert _holding(rec.frames[0], {}, held, previous).held_vertices is None, "nothing held before a grasp"
+    point = np.array([0.1, 0.05, 1.5]) + 0.004
+    frame = _holding(rec.frames[1], {2: point}, held, previous)
+    assert held == {2: near}
+    np.testing.assert_array_equal(frame.held_vertices, [near])
+    np.testing.assert_allclose(frame.held_points_m, [point])
+    # later frames keep the bound vertex wherever the gripper goes, beside a second gripper
+    moved = _estimate(rec.gt_vertices[0] + [0.3, 0.0, 0.0], mesh)
+    other = moved.vertices[0]  # bound on the latest estimate, not on the first
+    frame = _holding(rec.frames[2], {2: point + [0.0, 0.2, 0.0], 0: other}, held, moved)
+    np.testing.assert_array_equal(frame.held_vertices, [0, near])
+    assert frame.held_vertices.dtype == np.int32
+    assert _holding(rec.frames[3], {}, held, moved).held_vertices is None and held == {}, "opened: released"

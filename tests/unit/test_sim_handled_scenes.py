@@ -184,7 +184,31 @@ def test_table_lift_lifts_a_flat_cloth_by_its_corner_until_it_hangs():
             over = (np.abs(v[:, 0]) < table.half_extents_m[0]) & (np.abs(v[:, 1]) < table.half_extents_m[1])
             assert v[over, 2].min() > top, "no node sinks into the table"
             heights.append(v[corner, 2])
+            grips = scene.robot_grips()
+            if scene.time_s < scene.spec.grasp_events[0].time_s - 1e-9:
+                assert grips == {}, "nothing held before the gripper closes"
+            else:  # the robot knows where its fingers are: at the corner it lifts, seen by the camera
+                assert list(grips) == [0]
+                assert np.linalg.norm(grips[0] - scene.cloth_vertices_cam()[corner]) < 0.03
         speed = np.max(np.diff(heights)) * 30
         assert 0.3 - 0.02 <= speed <= 0.5 + 0.02, "lifted at robot speed"
         assert v[corner, 2] - top > np.hypot(width, height), "lifted by more than its diagonal"
         assert v[:, 2].min() - top > 0.02, "it hangs clear of the table"
+
+
+@pytest.mark.slow
+def test_the_empty_workspace_is_the_view_without_cloth_or_occluder_and_leaves_the_frames_alone():
+    with make_scene("table_lift", seed=1, width=W, height=H) as scene, \
+            make_scene("table_lift", seed=1, width=W, height=H) as same:
+        scene.render_empty()
+        np.testing.assert_array_equal(scene.render().rgb, same.render().rgb)  # its noise has its own stream
+    with make_scene("table_lift", seed=1, noise=False, width=W, height=H) as scene:
+        empty = scene.render_empty()
+        frame = scene.render()
+        cloth = scene.cloth_mask()
+        assert cloth.sum() > 20
+        # where the cloth lies the empty view sees the table further away; elsewhere the same surfaces
+        far = np.nan_to_num(empty.depth_m - frame.depth_m)
+        assert np.median(far[cloth]) > 0.003
+        assert np.median(np.abs(far[~cloth & ~scene.occluder_mask()])) < 0.003
+        assert empty.occluder_mask is None and empty.held_vertices is None
