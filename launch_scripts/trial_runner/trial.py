@@ -351,6 +351,7 @@ def run_trial(seed: int, config: TrialConfig | None = None,
                 _observe_plan_execute(scene, link, config, choose_plan, record)
         except (ChildError, TimeoutError, OSError, RuntimeError, ValueError) as e:
             log.warning("seed %d: %s: %s", seed, type(e).__name__, e)
+            log.debug("seed %d:\n%s", seed, traceback.format_exc())  # a bug looks like a bad option: show where
             record["failure"] = f"error: {type(e).__name__}: {' '.join(str(e).split())}"
         except Exception as e:  # noqa: BLE001 -- an unexpected failure of one trial must not stop a run of many
             log.error("seed %d failed:\n%s", seed, traceback.format_exc())
@@ -389,6 +390,18 @@ def _observe(scene, link: _Link, config: TrialConfig, reference) -> tuple[dict, 
     return frames, truth, estimates
 
 
+def _one_mesh_run(estimates: dict, last: int) -> list[int]:
+    """The frames up to ``last`` since the tracker built the mesh of ``last``'s estimate (a
+    tracker that lost the cloth and found it again builds a new one): the frames whose
+    vertices can be followed as material points to ``last``."""
+    seqs = [s for s in sorted(estimates) if s <= last]
+    canonical = estimates[last].canonical
+    first = len(seqs) - 1
+    while first > 0 and np.array_equal(estimates[seqs[first - 1]].canonical, canonical):
+        first -= 1
+    return seqs[first:]
+
+
 def _observe_plan_execute(scene, link: _Link, config: TrialConfig, choose_plan, record: dict) -> None:
     """The body of a trial once the services run; fills ``record``."""
     reference = scene.render_empty()
@@ -410,8 +423,8 @@ def _observe_plan_execute(scene, link: _Link, config: TrialConfig, choose_plan, 
                         "planning_ms": round(planning_ms, 1)}
     planned_on = reply.estimate_seq
     if planned_on in estimates:
-        upto = [s for s in seqs if s <= planned_on]
-        errors = vertex_errors(np.stack([estimates[s].vertices for s in upto]), np.stack([truth[s] for s in upto]),
+        run = _one_mesh_run(estimates, planned_on)
+        errors = vertex_errors(np.stack([estimates[s].vertices for s in run]), np.stack([truth[s] for s in run]),
                                scene.faces)[-1]
         summary = error_summary(errors)
         record["tracking_error_mm"] = {"mean": round(summary["mean_mm"], 2), "p95": round(summary["p95_mm"], 2)}

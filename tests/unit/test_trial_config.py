@@ -51,3 +51,19 @@ def test_the_settings_are_strict_json():
     assert json.loads(text)["tracker"]["spacing_m"] == 0.015
     assert settings["planner"]["workspace_min_world"] == [None, None, None]  # unbounded
     assert settings["planner"]["pinch_inset_m"] == 0.0 and settings["kind"] == "corner"
+
+
+def test_tracking_error_follows_only_the_mesh_the_plan_was_made_on():
+    from ipc.messages import MeshEstimate
+    from launch_scripts.trial_runner.trial import _one_mesh_run
+
+    def estimate(n):
+        canonical = np.c_[np.arange(n, dtype=np.float64), np.zeros((n, 2))]
+        return MeshEstimate(vertices=canonical.copy(), faces=np.zeros((0, 3), np.int32),
+                            boundary=np.zeros(0, np.int32), canonical=canonical, confidence=1.0, lost=False)
+
+    # frames 0-2 on a 5-vertex mesh, found again at frame 3 with a 7-vertex one
+    estimates = {0: estimate(5), 1: estimate(5), 2: estimate(5), 3: estimate(7), 4: estimate(7), 6: estimate(7)}
+    assert _one_mesh_run(estimates, 4) == [3, 4]  # neither the old mesh's frames nor later ones
+    assert _one_mesh_run(estimates, 6) == [3, 4, 6]
+    assert _one_mesh_run(estimates, 2) == [0, 1, 2]
