@@ -33,7 +33,7 @@ from sim.ground_truth import vertex_errors  # noqa: E402
 
 #: The variants: (name, changes to the unfold trials' tracker, send the background, send the hold)
 VARIANTS = (
-    ("trial tracker alone", {"lambda_l": 0.0}, False, False),
+    ("without the stretch term", {"lambda_l": 0.0}, False, False),
     ("+ stretch term", {}, False, False),
     ("+ background, hold", {"lambda_l": 0.0}, True, True),
     ("+ stretch, background, hold", {}, True, True),
