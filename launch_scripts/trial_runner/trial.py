@@ -84,7 +84,7 @@ TRIAL_TRACKER = TrackerConfig(spacing_m=0.015, use_boundary=False, features="klt
 #: Its stretch term (on by default) keeps edge lengths, so that the mesh folds as the lifted
 #: cloth turns away from the camera instead of shrinking onto what is still seen. With the
 #: background and the held vertex the trial sends, it took the error during the lift from
-#: 83-249 to 62-113 mm and while hanging from 143-358 to 101-176 mm on three towels
+#: 90-292 to 67-107 mm and while hanging from 159-511 to 115-150 mm on three towels
 #: (``python benchmarks/lift_tracking.py --seeds 2 4 22``).
 UNFOLD_TRACKER = dataclasses.replace(TRIAL_TRACKER, reacquire_every=0)
 #: The planner in trials: no inset, since the canonical corner vertex is already inside
