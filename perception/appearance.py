@@ -28,6 +28,11 @@ MIN_BLUR_PX = 1.5
 #: grey-level spread (standard deviation) above which a surface counts as textured
 MIN_SPREAD = 6.0
 MIN_SAMPLES = 20
+#: chromaticity spread (standard deviation) above which a cloth counts as colourful
+MIN_CHROMA_SPREAD = 0.01
+#: a surface found later is not the cloth when its spread is under this fraction of the cloth's
+#: (shading alone gives a plain arm a grey spread, never a print's spread of hue)
+SPREAD_KEPT = 0.25
 
 
 def _material_points(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
@@ -84,8 +89,19 @@ class AppearanceModel:
         self.colours = _colour_at(rgb, project(self.S @ vertices, K), self.blur_px)
         self.colours[~self._seen(visible, faces)] = np.nan
         known = np.all(np.isfinite(self.colours), axis=1)
-        grey = self.colours[known].mean(axis=1)
+        seen = self.colours[known]
+        grey = seen.mean(axis=1)
         self.textured = bool(known.sum() >= MIN_SAMPLES and np.std(grey) >= MIN_SPREAD)
+        chroma = seen[:, :2] / (seen.sum(axis=1, keepdims=True) + 3.0)  # + 3: no division by black
+        self.chroma_spread = float(np.std(chroma, axis=0).max()) if known.sum() >= MIN_SAMPLES else 0.0
+
+    def could_be(self, other: AppearanceModel) -> bool:
+        """Whether the surface ``other`` was made on (found later, by segmentation) can be this
+        cloth: a colourful print keeps at least ``SPREAD_KEPT`` of its spread of hue, whatever
+        the light; a plain cloth cannot be told from another plain surface by its colours."""
+        if self.chroma_spread < MIN_CHROMA_SPREAD:
+            return True
+        return other.chroma_spread >= SPREAD_KEPT * self.chroma_spread
 
     @staticmethod
     def _seen(visible: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -570,7 +570,13 @@ class MeshTracker:
 
     def _reinitialise_on_segment(self, frame: RGBDFrame, t0: float) -> MeshEstimate | None:
         """A new mesh on the object segmented afresh (by its colour, else by depth); the
-        estimate if it is not lost, else None, the tracker then left as it was."""
+        estimate if it is not lost, else None, the tracker then left as it was.
+
+        Unless the frame masks the robot's own arms (``RGBDFrame.occluder_mask``), a colourful
+        print is not found again on a surface of one hue (``AppearanceModel.could_be``): an arm
+        or a hand of the cloth's colour is segmented as readily as the cloth, and a mesh built
+        on it would look right to every later check, since its appearance is learnt anew. With
+        the arms masked, such a surface is the cloth's unprinted back, and is taken."""
         cfg = self.config
         mask = find_by_colour(frame.depth_m, frame.rgb, self._colour, cfg.segmentation) \
             if self._colour is not None else np.zeros(frame.depth_m.shape, bool)
@@ -591,9 +597,14 @@ class MeshTracker:
             return None
         saved = dict(self.__dict__)
         counters = (self.reacquisitions + 1, self.coarse_corrections)
+        cloth = self._appearance
         try:
             estimate = self._initialise(frame, mask, None, self._background_given)
         except TrackingError:
+            estimate = None
+        if estimate is not None and frame.occluder_mask is None and cloth is not None \
+                and not cloth.could_be(self._appearance):
+            log.debug("frame %d: the segmented object lacks the cloth's print: not it", frame.seq)
             estimate = None
         if estimate is None or estimate.lost:
             self.__dict__.update(saved)

@@ -1,0 +1,40 @@
+"""perception.appearance: whether a surface found later can be the cloth first seen."""
+
+import numpy as np
+
+from perception.appearance import AppearanceModel
+from sim.cloth_mesh import rectangle_cloth
+
+K = np.array([[500.0, 0.0, 160.0], [0.0, 500.0, 120.0], [0.0, 0.0, 1.0]])
+MESH = rectangle_cloth(0.4, 0.3, spacing_m=0.02)
+V = np.c_[MESH.uv_m - [0.2, 0.15], np.full(MESH.n_vertices, 1.0)]  # fills most of a 320x240 image
+
+
+def _model(rgb: np.ndarray) -> AppearanceModel:
+    return AppearanceModel(rgb, V, MESH.faces, K, np.ones(MESH.n_vertices, bool), 0.02)
+
+
+def _print(rng) -> np.ndarray:
+    """Blocks of many hues, each a few mesh spacings wide."""
+    blocks = rng.integers(30, 230, size=(8, 12, 3)).astype(np.uint8)
+    return np.kron(blocks, np.ones((30, 27, 1), np.uint8))[:240, :320]
+
+
+def _shaded_arm() -> np.ndarray:
+    """One skin tone, shaded across like a lit cylinder."""
+    shade = 0.55 + 0.45 * np.sin(np.linspace(0.0, np.pi, 320))[None, :, None]
+    return np.broadcast_to(np.array([225.0, 190.0, 180.0]) * shade, (240, 320, 3)).astype(np.uint8)
+
+
+def test_a_print_is_not_taken_for_a_plain_arm_its_shading_notwithstanding():
+    printed, arm = _model(_print(np.random.default_rng(0))), _model(_shaded_arm())
+    assert arm.textured, "shading alone spreads the grey levels: texture cannot tell the two apart"
+    assert not printed.could_be(arm)
+    assert printed.could_be(_model((_print(np.random.default_rng(0)) * 0.6).astype(np.uint8))), "dimmer light"
+    assert printed.could_be(_model(_print(np.random.default_rng(1)))), "another part of the print"
+
+
+def test_a_plain_cloth_cannot_tell_and_does_not_refuse():
+    plain = _model(np.full((240, 320, 3), (200, 170, 190), np.uint8))
+    assert plain.chroma_spread < 0.01
+    assert plain.could_be(_model(_shaded_arm()))
