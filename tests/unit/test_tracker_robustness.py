@@ -1,6 +1,8 @@
 """The tracker while something handles the cloth: occluders, known occluder masks,
 large motion, loss and re-acquisition. Rendered textured sheets whose true shape is known."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -172,3 +174,26 @@ def test_an_estimate_pushed_onto_the_wrong_surface_is_flagged_and_the_sheet_foun
     assert tracker.reacquisitions >= 1
     # A textured sheet is registered again: its canonical mesh (material coordinates) is kept.
     assert (len(tracker.mesh.canonical) == len(e0.canonical)) or not textured
+
+
+def test_a_print_is_not_found_again_on_a_plain_surface_of_its_colour_unless_the_arms_are_masked(tex):
+    """The printed sheet gone, and a plain surface of its ground colour beside where it was (a
+    robot's arm, a hand, or the cloth's unprinted back): a mesh built on it learns its appearance
+    anew and would be tracked at full confidence. Unless the frames mask the robot's own arms it
+    is not taken, and the tracker stays lost; with them masked, it can only be the cloth's back,
+    and it is."""
+    plain = texture(np.random.default_rng(0), textured=False)  # the print's ground colour
+    for masked in (False, True):
+        tracker = MeshTracker(TrackerConfig(features="klt"))
+        tracker.initialise(sheet(np.zeros(3), tex, 0))
+        estimates = []
+        for k in range(1, 4):
+            frame = sheet(np.array([0.25, 0.0, 0.0]), plain, k)
+            if masked:
+                frame = dataclasses.replace(frame, occluder_mask=np.zeros(frame.depth_m.shape, bool))
+            estimates.append(tracker.track(frame))
+        if masked:
+            assert tracker.reacquisitions == 1 and not estimates[-1].lost
+        else:
+            assert tracker.reacquisitions == 0 and all(e.lost for e in estimates), \
+                [(e.confidence, e.lost) for e in estimates]
