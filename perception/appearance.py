@@ -69,6 +69,11 @@ def _colour_at(rgb: np.ndarray, uv: np.ndarray, blur_px: float) -> np.ndarray:
     return out
 
 
+def _brightness(colours: np.ndarray) -> np.ndarray:
+    """(P,) the channel sum of colours (P, 3), plus 3 so that black divides nothing by zero."""
+    return colours.sum(axis=1) + 3.0
+
+
 def _ramp(value: float, zero: float, one: float) -> float:
     """0 at ``zero``, 1 at ``one``, linear between (either order), clipped."""
     return float(np.clip((value - zero) / (one - zero), 0.0, 1.0))
@@ -92,7 +97,7 @@ class AppearanceModel:
         seen = self.colours[known]
         grey = seen.mean(axis=1)
         self.textured = bool(known.sum() >= MIN_SAMPLES and np.std(grey) >= MIN_SPREAD)
-        chroma = seen[:, :2] / (seen.sum(axis=1, keepdims=True) + 3.0)  # + 3: no division by black
+        chroma = seen[:, :2] / _brightness(seen)[:, None]
         self.chroma_spread = float(np.std(chroma, axis=0).max()) if known.sum() >= MIN_SAMPLES else 0.0
 
     def could_be(self, other: AppearanceModel) -> bool:
@@ -123,7 +128,7 @@ class AppearanceModel:
             ncc = float(np.sum(a * b) / spread) if spread > 1e-6 else 0.0
             self.last_value = ncc
             return _ramp(ncc, 0.15, 0.4)
-        bright_before, bright_now = before.sum(axis=1) + 3.0, now.sum(axis=1) + 3.0  # + 3: no division by black
+        bright_before, bright_now = _brightness(before), _brightness(now)
         ratio = float(np.median(bright_now / bright_before))
         chroma = float(np.median(np.linalg.norm(now / bright_now[:, None] - before / bright_before[:, None], axis=1)))
         self.last_value = (ratio, chroma)

@@ -515,9 +515,9 @@ class MeshTracker:
         the canonical mesh is placed where its material points are, and the frame is solved
         from there with the registration's matches as correspondences. Where that fails (a
         cloth without enough texture, or a print turned over), the object is segmented again
-        (by its colour, else by depth) and a new mesh is built on it, as at initialisation: which material point
-        lies where cannot be known then, so the estimate comes with a new canonical mesh
-        rather than one whose material coordinates would be a guess."""
+        (by its colour, else by depth) and a new mesh is built on it, as at initialisation:
+        which material point lies where cannot be known then, so the estimate comes with a
+        new canonical mesh rather than one whose material coordinates would be a guess."""
         cfg = self.config
         K = frame.camera.K
         faces = self.mesh.faces
