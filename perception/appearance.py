@@ -74,6 +74,14 @@ def _brightness(colours: np.ndarray) -> np.ndarray:
     return colours.sum(axis=1) + 3.0
 
 
+def _ncc(before: np.ndarray, now: np.ndarray) -> float:
+    """Normalised correlation of the grey values of colours (P, 3) then and now; 0 when either is flat."""
+    a, b = before.mean(axis=1), now.mean(axis=1)
+    a, b = a - a.mean(), b - b.mean()
+    spread = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
+    return float(np.sum(a * b) / spread) if spread > 1e-6 else 0.0
+
+
 def _ramp(value: float, zero: float, one: float) -> float:
     """0 at ``zero``, 1 at ``one``, linear between (either order), clipped."""
     return float(np.clip((value - zero) / (one - zero), 0.0, 1.0))
@@ -84,11 +92,22 @@ class AppearanceModel:
 
     rgb : (H, W, 3) uint8; vertices : (N, 3); faces : (M, 3) int; K : (3, 3);
     visible : (N,) bool, the vertices seen in that frame; spacing_m : the mesh's edge length
+    boundary : (B,) int, the mesh's boundary vertices, or None. A texture is also correlated
+        without the material points on them and on the faces that touch them, and the lower
+        of the two correlations counts: blurred, their colour is partly the background's,
+        and the darker or lighter ring that makes along any surface's outline correlates as
+        well on a plain surface as on the print (while on a mesh slid off the cloth it is
+        what shows the slide)
     """
 
     def __init__(self, rgb: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, visible: np.ndarray,
-                 spacing_m: float):
-        self.S = _material_points(np.asarray(faces), len(vertices))
+                 spacing_m: float, boundary: np.ndarray | None = None):
+        faces = np.asarray(faces)
+        self.S = _material_points(faces, len(vertices))
+        on_outline = np.zeros(len(vertices), bool)
+        if boundary is not None:
+            on_outline[np.asarray(boundary, np.int64)] = True
+        self._inner = ~np.concatenate([on_outline, np.any(on_outline[faces], axis=1)])
         spacing_px = K[0, 0] * spacing_m / float(np.median(vertices[:, 2]))
         self.blur_px = max(MIN_BLUR_PX, spacing_px / 3.0)
         self.colours = _colour_at(rgb, project(self.S @ vertices, K), self.blur_px)
@@ -122,10 +141,10 @@ class AppearanceModel:
             return 1.0
         before, now = self.colours[both], now[both]
         if self.textured:
-            a, b = before.mean(axis=1), now.mean(axis=1)
-            a, b = a - a.mean(), b - b.mean()
-            spread = float(np.sqrt(np.sum(a * a) * np.sum(b * b)))
-            ncc = float(np.sum(a * b) / spread) if spread > 1e-6 else 0.0
+            inner = self._inner[both]
+            ncc = _ncc(before, now)
+            if inner.sum() >= MIN_SAMPLES:
+                ncc = min(ncc, _ncc(before[inner], now[inner]))
             self.last_value = ncc
             return _ramp(ncc, 0.15, 0.4)
         bright_before, bright_now = _brightness(before), _brightness(now)

@@ -112,7 +112,8 @@ def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, 
         c, r, ok = pixel_index(uv / q, small.shape[1], small.shape[0])
         footprint[r[ok], c[ok]] = 1
         spacing_px = K[0, 0] * float(np.median(rest_lengths_m)) / max(float(np.median(vertices[:, 2])), 1e-6)
-        radius = max(1, int(np.ceil(0.75 * spacing_px / q)))
+        # at most the image's size: a mesh pushed against the camera has huge spacings in pixels
+        radius = int(np.clip(np.ceil(0.75 * spacing_px / q), 1, max(small.shape)))
         footprint = cv2.dilate(footprint, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1,) * 2))
         coverage = (footprint.astype(bool) & small).sum() / area
     if leak > 0.3:

@@ -12,6 +12,7 @@ Where the paper is silent or orthographic, choices made here:
   pinhole intrinsics, ``||v|| - rho(pi(v))`` with ``rho`` the measured range image, so
   the force moves the vertex along its viewing ray (the paper's Fig. 1). Residuals beyond
   ``outlier_m`` are ignored (a vertex hidden behind another layer, or seeing past an edge).
+  ``PlaneDepthTerm`` measures it along the measured surface's normal instead (an option).
 - Boundary (eq. 15): the distance to the nearest 3D outline point is signed (negative when
   the vertex projects outside the object), so a vertex that slid past the outline is
   pulled back rather than pushed further out to the canonical distance.
@@ -20,6 +21,9 @@ Where the paper is silent or orthographic, choices made here:
   data terms pull only vertices classified visible (``perception.visibility``), and
   ``MotionPriorTerm`` keeps the predicted shape of the mesh around the others, so that an
   occluded part moves with its visible neighbours instead of being squeezed or dragged.
+- Vertices seen off the object: the paper's data terms say nothing about a vertex whose
+  pixel shows something other than the object; ``OutsideTerm`` pulls it back to the
+  object's outline.
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from perception.geometry import pixel_index, project
+from perception.raster import bounding_box
 
 
 @dataclass
@@ -128,6 +133,94 @@ class DepthTerm:
         return lambda P: n * np.einsum("ij,ij->i", n, P)[:, None]
 
 
+#: How the depth term measures a vertex's distance from the measured surface: along the
+#: vertex's camera ray (the paper's, ``DepthTerm``) or along the surface's normal
+#: (``PlaneDepthTerm``).
+DEPTH_RESIDUALS = ("ray", "plane")
+
+
+def measured_surface(depth_m: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The measured surface's points and unit normals at each pixel of ``depth_m``.
+
+    depth_m : (H, W) float32 metres, 0 where there is none (an observation's smoothed object
+    depth); K : (3, 3). Returns points (H, W, 3) and normals (H, W, 3) float64 in the camera
+    frame (a normal from the central differences of the points around the pixel), and
+    (H, W) bool where both are known (the pixel and its four neighbours have depth).
+    Only the box around the pixels with depth is computed; elsewhere the normal is unknown.
+    """
+    h, w = depth_m.shape
+    points = np.zeros((h, w, 3))
+    normals = np.zeros((h, w, 3))
+    known = np.zeros((h, w), bool)
+    box = bounding_box(depth_m > 0, pad=1)
+    if box is None:
+        return points, normals, known
+    y0, y1, x0, x1 = box
+    d = depth_m[y0:y1, x0:x1].astype(np.float64)
+    uu, vv = np.meshgrid(np.arange(x0, x1), np.arange(y0, y1))
+    P = np.stack([(uu - K[0, 2]) / K[0, 0] * d, (vv - K[1, 2]) / K[1, 1] * d, d], axis=-1)
+    has = d > 0
+    ok = np.zeros_like(has)
+    ok[1:-1, 1:-1] = has[1:-1, 1:-1] & has[1:-1, 2:] & has[1:-1, :-2] & has[2:, 1:-1] & has[:-2, 1:-1]
+    n = np.zeros_like(P)
+    n[1:-1, 1:-1] = np.cross(P[1:-1, 2:] - P[1:-1, :-2], P[2:, 1:-1] - P[:-2, 1:-1])
+    length = np.linalg.norm(n, axis=-1)
+    ok &= length > 0
+    points[y0:y1, x0:x1] = P
+    normals[y0:y1, x0:x1] = n / np.maximum(length, 1e-12)[..., None]
+    known[y0:y1, x0:x1] = ok
+    return points, normals, known
+
+
+@dataclass
+class PlaneDepthTerm:
+    """Psi_D = 1/2 sum_i (n(pi(v_i)) . (v_i - p(pi(v_i))))^2: depth as distance to the measured
+    surface's tangent plane at the vertex's pixel (point-to-plane), not along its ray.
+
+    Not the paper's residual (``DepthTerm``). Along the ray, a vertex on a surface seen at a
+    grazing angle (a cloth lifted edge-on to the camera, or hanging) is moved mostly across
+    the surface, so the depth term drags material points sideways; along the surface's
+    normal it is moved onto the surface and no further.
+
+    points, normals : (H, W, 3) and known : (H, W) bool from ``measured_surface``; K : (3, 3);
+    outlier_m : residuals larger than this contribute nothing; vertex_mask : as DepthTerm's
+    """
+
+    points: np.ndarray
+    normals: np.ndarray
+    known: np.ndarray
+    K: np.ndarray
+    outlier_m: float
+    vertex_mask: np.ndarray | None = None
+    name: str = "depth"
+    _last: tuple | None = field(default=None, init=False, repr=False)
+
+    def lookup(self, V: np.ndarray):
+        """Residual (N,) metres, the (N,) bool mask of vertices it applies to and the (N, 3)
+        normals there; the last answer is kept, as in ``DepthTerm.lookup``."""
+        if self._last is not None and self._last[0] is V:
+            return self._last[1]
+        h, w = self.known.shape
+        cols, rows, inside = pixel_index(project(V, self.K), w, h)
+        n = self.normals[rows, cols]
+        r = np.einsum("ij,ij->i", V - self.points[rows, cols], n)
+        active = inside & self.known[rows, cols] & (np.abs(r) < self.outlier_m)
+        if self.vertex_mask is not None:
+            active &= self.vertex_mask
+        answer = (np.where(active, r, 0.0), active, np.where(active[:, None], n, 0.0))
+        self._last = (V, answer)
+        return answer
+
+    def evaluate(self, V: np.ndarray):
+        r, _, n = self.lookup(V)
+        return 0.5 * float(np.sum(r * r)), r[:, None] * n
+
+    def gauss_newton(self, V: np.ndarray):
+        """Gauss-Newton Hessian-vector product at V: rank one along each active vertex's normal."""
+        _, _, n = self.lookup(V)
+        return lambda P: n * np.einsum("ij,ij->i", n, P)[:, None]
+
+
 @dataclass
 class BoundaryTerm:
     """Psi_B = 1/2 sum_{i in B} (g(v_i) - g0_i)^2, paper eq. 15, with a signed distance g.
@@ -190,6 +283,56 @@ class BoundaryTerm:
         dist = np.maximum(np.abs(s), 1e-12)[:, None]
         u[self.vertex_ids[active]] = (offset / dist)[active]
         return lambda P: u * np.einsum("ij,ij->i", u, P)[:, None]
+
+
+@dataclass
+class OutsideTerm:
+    """Psi_O = 1/2 sum_{i seen outside the object} ||v_i - q_i||^2, q_i the nearest outline point.
+
+    Not in the paper. A vertex the camera sees where the segmented object is not (the
+    empty table where the cloth lay before it was lifted) has no depth there and, unless it
+    is a boundary vertex near the outline, no other pull: the part of a mesh left behind
+    stays behind, held only by the stretch of its edges. This pulls every such vertex to
+    the object's outline; a vertex hidden behind something nearer is not seen and not pulled.
+
+    outline_points : (P, 3) float64 metres, the object's outline in 3D
+    mask : (H, W) bool object mask; K : (3, 3)
+    vertex_mask : (N,) bool, the vertices seen (the only ones the term may pull)
+    """
+
+    outline_points: np.ndarray
+    mask: np.ndarray
+    K: np.ndarray
+    vertex_mask: np.ndarray
+    name: str = "outside"
+
+    def __post_init__(self):
+        self._tree = cKDTree(self.outline_points) if len(self.outline_points) else None
+        self._last = None
+
+    def offsets(self, V: np.ndarray) -> np.ndarray:
+        """(N, 3) v_i - q_i for the vertices seen outside the object, 0 for the others. The
+        last answer is kept, as in ``DepthTerm.lookup``."""
+        if self._last is not None and self._last[0] is V:
+            return self._last[1]
+        out = np.zeros_like(V)
+        if self._tree is not None:
+            h, w = self.mask.shape
+            cols, rows, inside = pixel_index(project(V, self.K), w, h)
+            outside = self.vertex_mask & inside & ~self.mask[rows, cols]
+            if outside.any():
+                _, idx = self._tree.query(V[outside])
+                out[outside] = V[outside] - self.outline_points[idx]
+        self._last = (V, out)
+        return out
+
+    def evaluate(self, V: np.ndarray):
+        D = self.offsets(V)
+        return 0.5 * float(np.sum(D * D)), D
+
+    def gauss_newton(self, V: np.ndarray):
+        pulled = np.any(self.offsets(V) != 0, axis=1)[:, None]
+        return lambda P: np.where(pulled, P, 0.0)
 
 
 @dataclass

@@ -46,12 +46,16 @@ from perception.coarse import MIN_RESPONSE, FrameMemory
 from perception.colour_model import ColourModel
 from perception.confidence import Assessment, assess
 from perception.energy import (
+    DEPTH_RESIDUALS,
     BoundaryTerm,
     CorrespondenceTerm,
     DepthTerm,
     HoldTerm,
     MotionPriorTerm,
+    OutsideTerm,
+    PlaneDepthTerm,
     StretchTerm,
+    measured_surface,
 )
 from perception.features import (
     FEATURE_KINDS,
@@ -136,6 +140,9 @@ class TrackerConfig:
     outlier_radii_m : inlier radius of each solver stage; a match farther from its mesh point is ignored
     depth_window_px : depth is averaged over this window on the object (noise)
     depth_outlier_m : depth residuals larger than this are ignored (occlusion, edges)
+    depth_residual : "ray" (the paper's: distance along the vertex's camera ray) or "plane"
+        (along the measured surface's normal, ``perception.energy.PlaneDepthTerm``: a surface
+        seen edge-on is not slid along)
     occlusion_margin_m : a vertex is hidden when the measured surface at its pixel is this much nearer
     lambda_m : weight of the motion prior that carries hidden and unobserved vertices
     lambda_l : weight of the stretch term that keeps the mesh's edge lengths (0: the paper's
@@ -144,6 +151,12 @@ class TrackerConfig:
         stay at its grippers (``RGBDFrame.held_points_m``)
     coarse_motion : before each frame's minimisation, also consider the last mesh unmoved and
         moved by the image translation measured around it (large motions, dropped frames)
+    self_occlusion : a vertex that another part of the mesh hides (a fold) is occluded too,
+        when the measured surface is in front of it as well, so that the data does not pull
+        the layer behind onto the one in front
+    lambda_o : weight of the outside term: vertices seen where the segmented object is not
+        (the table a lifted cloth has left) are pulled to its outline (0, the default: off; it
+        needs a segmentation to trust, such as the one a ``background`` gives)
     boundary_gate_m : boundary vertices farther than this from the outline are left alone
     velocity_prediction : fraction of the last inter-frame motion added to predict the next frame
     init_iterations : smoothing iterations when the mesh is laid on the first frame
@@ -178,11 +191,14 @@ class TrackerConfig:
     outlier_radii_m: tuple = (0.05, 0.02)
     depth_window_px: int = 5
     depth_outlier_m: float = 0.08
+    depth_residual: str = field(default="ray", metadata={"choices": DEPTH_RESIDUALS})
     occlusion_margin_m: float = 0.08
     lambda_m: float = 1.0
     lambda_l: float = 5.0
     lambda_h: float = 100.0
     coarse_motion: bool = True
+    self_occlusion: bool = True
+    lambda_o: float = 0.0
     boundary_gate_m: float = 0.06
     velocity_prediction: float = 0.5
     init_iterations: int = 10
@@ -198,7 +214,7 @@ class TrackerConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a positive number, got {v!r}")
-        for name in ("spacing_m", "lambda_c", "lambda_d", "lambda_b", "lambda_m", "lambda_l", "lambda_h",
+        for name in ("spacing_m", "lambda_c", "lambda_d", "lambda_b", "lambda_m", "lambda_l", "lambda_h", "lambda_o",
                      "velocity_prediction",
                      "min_predicted_decrease"):
             v = getattr(self, name)
@@ -215,6 +231,8 @@ class TrackerConfig:
         if int(self.reacquire_every) < 0:
             raise ValueError(f"TrackerConfig.reacquire_every: expected an integer >= 0, got {self.reacquire_every!r}")
         resolve_kind(self.features)
+        if self.depth_residual not in DEPTH_RESIDUALS:
+            raise ValueError(f"TrackerConfig.depth_residual: expected one of {DEPTH_RESIDUALS}, got {self.depth_residual!r}")
 
     @classmethod
     def realtime(cls, **overrides) -> TrackerConfig:
@@ -396,8 +414,9 @@ class MeshTracker:
                 self._corr.points.initialise(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
         self.last_observation = obs
         self._memory.push(self._memory.small(obs.grey))
-        visible = classify_vertices(V, frame.depth_m, frame.camera.K, cfg.occlusion_margin_m, frame.occluder_mask) == VISIBLE
-        self._appearance = AppearanceModel(frame.rgb, V, mesh.faces, frame.camera.K, visible, mesh.spacing_m)
+        visible = self._states(V, frame) == VISIBLE
+        self._appearance = AppearanceModel(frame.rgb, V, mesh.faces, frame.camera.K, visible, mesh.spacing_m,
+                                           mesh.boundary)
         self._colour = ColourModel(frame.rgb, obs.mask)
         self._registration = GlobalRegistration(resolve_kind("auto"), rng=self._rng)
         self._registration.build(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
@@ -408,6 +427,14 @@ class MeshTracker:
         log.info("initialised mesh: %d vertices, %d faces, %d boundary, %d features", mesh.n_vertices,
                  len(mesh.faces), len(mesh.boundary), self._corr.n_model if self._corr else 0)
         return self._estimate(frame, V, res.energies, res.iterations, assessment, t0, visible)
+
+    def _states(self, V: np.ndarray, frame: RGBDFrame) -> np.ndarray:
+        """(N,) int8 visibility state of each vertex of ``V`` (N, 3) in ``frame``
+        (``perception.visibility``), the mesh's own folds included when configured."""
+        cfg = self.config
+        faces = self.mesh.faces if cfg.self_occlusion else None
+        return classify_vertices(V, frame.depth_m, frame.camera.K, cfg.occlusion_margin_m, frame.occluder_mask,
+                                 faces, 0.5 * self.mesh.spacing_m)
 
     def _make_solver(self, mesh: CanonicalMesh) -> SemiImplicitSolver:
         cfg = self.config
@@ -443,10 +470,15 @@ class MeshTracker:
         terms = []
         if correspondences is not None and cfg.use_correspondence and len(correspondences.targets):
             terms.append((cfg.lambda_c, correspondences))
-        if cfg.use_depth:
+        if cfg.use_depth and cfg.depth_residual == "plane":
+            terms.append((cfg.lambda_d, PlaneDepthTerm(*measured_surface(obs.depth_m, obs.K), obs.K, cfg.depth_outlier_m,
+                                                       vertex_mask=observed)))
+        elif cfg.use_depth:
             terms.append((cfg.lambda_d, DepthTerm(obs.range_m, obs.K, cfg.depth_outlier_m, vertex_mask=observed)))
         if cfg.use_boundary and len(obs.outline_cam):
             terms.append((cfg.lambda_b, self._boundary_term(obs, self._g0, observed)))
+        if cfg.lambda_o > 0 and observed is not None and len(obs.outline_cam):
+            terms.append((cfg.lambda_o, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed)))
         if observed is not None and prior is not None and cfg.lambda_m > 0 and not observed.all():
             terms.append((cfg.lambda_m, MotionPriorTerm.around(self._edges, ~observed, prior)))
         if cfg.lambda_l > 0 and self._stretch is not None:
@@ -542,10 +574,10 @@ class MeshTracker:
             if has.sum() >= 3:
                 B = barycentric_matrix(found.face_ids[has], found.bary[has], faces, self.mesh.n_vertices)
                 corr = CorrespondenceTerm(B, pts[has], np.ones(int(has.sum())))
-        observed = classify_vertices(V0, frame.depth_m, K, cfg.occlusion_margin_m, occluder) != OCCLUDED
+        observed = self._states(V0, frame) != OCCLUDED
         res = self._solver.minimise(V0, self._data_terms(obs, corr, observed, V0), 2 * cfg.init_iterations, cfg.tolerance_m)
         V = res.vertices
-        visible = classify_vertices(V, frame.depth_m, K, cfg.occlusion_margin_m, occluder) == VISIBLE
+        visible = self._states(V, frame) == VISIBLE
         assessment = self._assess(V, frame, visible, mask, segment.leak)
         if assessment.lost(cfg.lost_confidence):
             log.debug("frame %d: re-acquisition rejected (%s)", frame.seq, assessment.as_dict())
@@ -685,9 +717,8 @@ class MeshTracker:
         cfg = self.config
         K = frame.camera.K
         faces = self.mesh.faces
-        occluder = frame.occluder_mask
         z = V_pred[:, 2]
-        state = classify_vertices(V_pred, frame.depth_m, K, cfg.occlusion_margin_m, occluder)
+        state = self._states(V_pred, frame)
         behind = np.any(state[faces] == OCCLUDED, axis=1)
         hidden_mask = faces_mask(project(V_pred, K), faces[behind], pred_mask.shape) if behind.any() else None
         segment = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation,
@@ -697,7 +728,7 @@ class MeshTracker:
             log.debug("frame %d: object not seen", frame.seq)
             self._V_prev, self._V = self._V, self._V.copy()
             self.last_observation = None
-            state = classify_vertices(self._V, frame.depth_m, K, cfg.occlusion_margin_m, occluder)
+            state = self._states(self._V, frame)
             return self._estimate(frame, self._V, {}, 0, None, t0, state == VISIBLE)
         # Hidden and out-of-view vertices have no data; one without depth may have slid off
         # the object (the boundary term brings it back) or sit on a hole in the depth.
@@ -730,7 +761,7 @@ class MeshTracker:
         self.last_observation = obs
         if corr is not None:
             energies["inliers"] = float(corr.weights.sum())
-        visible = classify_vertices(V, frame.depth_m, K, cfg.occlusion_margin_m, occluder) == VISIBLE
+        visible = self._states(V, frame) == VISIBLE
         assessment = self._assess(V, frame, visible, mask, segment.leak)
         return self._estimate(frame, V, energies, iterations, assessment, t0, visible)
 

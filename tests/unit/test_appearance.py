@@ -38,3 +38,25 @@ def test_a_plain_cloth_cannot_tell_and_does_not_refuse():
     plain = _model(np.full((240, 320, 3), (200, 170, 190), np.uint8))
     assert plain.chroma_spread < 0.01
     assert plain.could_be(_model(_shaded_arm()))
+
+
+def _on_background(inside: np.ndarray) -> np.ndarray:
+    """``inside`` where the mesh projects, a dark background around it (the mesh's outline)."""
+    rgb = np.full((240, 320, 3), 40, np.uint8)
+    uv = V[:, :2] / V[:, 2:] * K[0, 0] + K[:2, 2]
+    (x0, y0), (x1, y1) = np.floor(uv.min(axis=0)).astype(int), np.ceil(uv.max(axis=0)).astype(int)
+    rgb[y0:y1 + 1, x0:x1 + 1] = inside[y0:y1 + 1, x0:x1 + 1]
+    return rgb
+
+
+def test_a_print_does_not_look_like_a_plain_surface_with_the_same_outline():
+    """Blurred, the samples along a mesh's outline mix in the background: a ring darker than
+    the surface inside, on the print and on a plain surface alike. Compared on them too, a
+    plain surface laid exactly where the print was correlates with it."""
+    printed = _print(np.random.default_rng(0))
+    plain = np.broadcast_to(printed.reshape(-1, 3).mean(axis=0).astype(np.uint8), printed.shape)
+    seen = np.ones(MESH.n_vertices, bool)
+    outline = np.flatnonzero(np.bincount(MESH.edges().ravel(), minlength=MESH.n_vertices) < 6)
+    model = AppearanceModel(_on_background(printed), V, MESH.faces, K, seen, 0.02, outline)
+    assert model.likeness(_on_background(printed), V, MESH.faces, K, seen) == 1.0
+    assert model.likeness(_on_background(plain), V, MESH.faces, K, seen) == 0.0

@@ -9,6 +9,8 @@ from perception.energy import (
     DepthTerm,
     HoldTerm,
     MotionPriorTerm,
+    OutsideTerm,
+    PlaneDepthTerm,
     SmoothnessTerm,
     StretchTerm,
 )
@@ -87,6 +89,33 @@ def test_depth_gradient_is_along_the_ray():
     _, grad = term.evaluate(V)
     cos = np.abs(np.einsum("ij,ij->i", grad, V)) / (np.linalg.norm(grad, axis=1) * np.linalg.norm(V, axis=1))
     assert np.all(cos[np.linalg.norm(grad, axis=1) > 0] > 1 - 1e-9)
+
+
+def tilted_plane_depth(slope=0.8, z0=1.25):
+    """(H, W) depth of the plane z = z0 + slope * x, seen steeply (as a lifted cloth is)."""
+    h, w = 480, 640
+    uu, _ = np.meshgrid(np.arange(w), np.arange(h))
+    x_over_z = (uu - K[0, 2]) / K[0, 0]
+    return (z0 / (1.0 - slope * x_over_z)).astype(np.float32)
+
+
+def test_plane_depth_gradient_and_it_pulls_along_the_surface_normal():
+    from perception.energy import measured_surface
+
+    rng = np.random.default_rng(8)
+    _, V = mesh_vertices(rng)
+    term = PlaneDepthTerm(*measured_surface(tilted_plane_depth(), K), K, outlier_m=0.5)
+    check_gradient(term, V)
+    normal = np.array([-0.8, 0.0, 1.0]) / np.hypot(0.8, 1.0)  # of z = 1.25 + 0.8 x
+    _, grad = term.evaluate(V)
+    pulled = np.linalg.norm(grad, axis=1) > 0
+    assert pulled.sum() > 0.9 * len(V)
+    cos = np.abs(grad[pulled] @ normal) / np.linalg.norm(grad[pulled], axis=1)
+    assert np.all(cos > 1 - 1e-6)  # along the normal, where the ray residual would pull along the ray
+    # the residual is the distance to the plane
+    on = np.array([[0.1, 0.05, 1.25 + 0.8 * 0.1]])
+    r, active, _ = term.lookup(on + 0.01 * normal)
+    assert active[0] and r[0] == pytest.approx(0.01, rel=1e-3)
 
 
 def test_depth_residual_is_distance_along_ray_and_outliers_ignored():
@@ -219,6 +248,26 @@ def test_boundary_pulls_outside_vertex_inward():
     assert g[0, 0] > 0  # descent (-g) moves it toward -x, back inside
     e, _ = term.evaluate(V)
     assert e == pytest.approx(0.5 * (0.03 + 0.01) ** 2, rel=1e-3)
+
+
+def test_outside_pulls_seen_vertices_off_the_object_to_its_outline_and_no_others():
+    rng = np.random.default_rng(6)
+    outline, mask = outline_square(1.2)
+    # vertices spread over twice the square: about three quarters project off the object
+    V = np.column_stack([rng.uniform(-0.2, 0.2, 60), rng.uniform(-0.2, 0.2, 60), np.full(60, 1.2)])
+    seen = rng.random(60) < 0.8
+    term = OutsideTerm(outline, mask, K, seen)
+    check_gradient(term, V)
+    _, grad = term.evaluate(V)
+    off = np.maximum(np.abs(V[:, 0]), np.abs(V[:, 1])) > 0.1 + 3 * 1.2 / 500  # more than 3 px outside
+    on = np.maximum(np.abs(V[:, 0]), np.abs(V[:, 1])) < 0.1 - 3 * 1.2 / 500
+    pull = np.linalg.norm(grad, axis=1)
+    assert (off & seen).sum() > 10 and (on & seen).sum() > 3
+    assert pull[off & seen].min() > 0 and pull[on].max() == 0 and pull[~seen].max() == 0
+    # the pull is the offset from the nearest outline point: a vertex 5 cm right of the square
+    e, g = OutsideTerm(outline, mask, K, np.ones(1, bool)).evaluate(np.array([[0.15, 0.0, 1.2]]))
+    assert e == pytest.approx(0.5 * 0.05 ** 2, rel=1e-3)
+    assert g[0, 0] > 0  # descent (-g) moves it toward -x, onto the object
 
 
 def test_match_gated_follows_the_papers_rules():

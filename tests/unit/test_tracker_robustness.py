@@ -9,7 +9,16 @@ import pytest
 from ipc.messages import CameraInfo
 from perception import MeshTracker, TrackerConfig
 from perception.geometry import project
-from perception.visibility import NO_DEPTH, OCCLUDED, OUT_OF_VIEW, VISIBLE, classify_vertices
+from perception.mesh import rectangle_mesh
+from perception.visibility import (
+    NO_DEPTH,
+    OCCLUDED,
+    OUT_OF_VIEW,
+    VISIBLE,
+    _hidden_by_drawing,
+    classify_vertices,
+    hidden_by_mesh,
+)
 from tests.render import frame_of, grid_surface, plane_points, texture, with_occluder
 
 CAM = CameraInfo.from_fov(640, 480, np.deg2rad(45))
@@ -41,6 +50,33 @@ def test_classify_vertices_names_what_hides_each_vertex():
     state = classify_vertices(V, depth, K, margin_m=0.08, occluder_mask=occluder)
     assert state.tolist() == [VISIBLE, OCCLUDED, NO_DEPTH, OCCLUDED, OUT_OF_VIEW]
     assert classify_vertices(V, depth, K, margin_m=0.5)[1] == VISIBLE  # 40 cm nearer is within a 50 cm margin
+
+
+def test_the_layer_behind_a_fold_is_hidden_only_where_the_data_sees_the_layer_in_front():
+    """A sheet folded over itself: its back layer lies 2 cm behind the front one, nearer than
+    any depth margin, so only the mesh itself can tell that the camera does not see it."""
+    K = CAM.K
+    patch = rectangle_mesh(0.3, 0.2, 0.02)
+    front = patch.canonical - [0.15, 0.1, -1.28]
+    back = front + [0.003, 0.004, 0.02]  # offset so no vertex hides exactly behind another
+    V = np.vstack([front, back])
+    faces = np.vstack([patch.faces, patch.faces[:, ::-1] + len(front)])  # folded: seen from its other side
+    is_back = np.arange(len(V)) >= len(front)
+    inner = np.all(np.abs(V[:, :2] - [0.0, 0.0]) < [0.13, 0.08], axis=1)  # clear of the sheet's edges
+    np.testing.assert_array_equal(hidden_by_mesh(V, faces, K, (480, 640), 0.01)[inner], is_back[inner])
+    # the same answer by drawing the mesh, as for a mesh with faces stretched across the image
+    drawn = _hidden_by_drawing(V, faces, project(V, K), np.arange(len(V)), 0.01, (480, 640))
+    np.testing.assert_array_equal(drawn[inner], is_back[inner])
+    measured = np.full((480, 640), 1.28, np.float32)  # the front layer, as a camera sees it
+    plain = classify_vertices(V, measured, K, margin_m=0.08)
+    folded = classify_vertices(V, measured, K, margin_m=0.08, faces=faces, self_margin_m=0.01)
+    assert np.all(plain[inner] == VISIBLE)  # 2 cm is within the depth margin
+    assert np.all(folded[inner & is_back] == OCCLUDED) and np.all(folded[inner & ~is_back] == VISIBLE)
+    # A fold the data does not show (the surface measured where the back layer is) hides nothing:
+    # the data must be free to pull a wrongly folded layer away.
+    unfolded = classify_vertices(V, np.full((480, 640), 1.30, np.float32), K, margin_m=0.08, faces=faces,
+                                 self_margin_m=0.01)
+    assert np.all(unfolded[inner] == VISIBLE)
 
 
 @pytest.mark.parametrize("features", ["sift", "klt"])
