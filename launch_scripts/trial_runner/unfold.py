@@ -31,7 +31,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ipc.messages import AdjacentCornersRequest, GraspPlan, InitialiseRequest, MeshEstimate, StatusReply
+from ipc.messages import (
+    AdjacentCornersRequest,
+    GraspPlan,
+    InitialiseRequest,
+    MeshEstimate,
+    StatusReply,
+    StatusRequest,
+)
 from perception.geometry import invert_transform, transform_points
 from sim.grasp_execution import close_fingers, fingertip_target, move_grippers, plan_to_world
 from sim.ground_truth import error_summary, vertex_errors
@@ -119,6 +126,17 @@ def _cloth_seen(frame, reference) -> np.ndarray:
     return mask
 
 
+def no_adjacent_corner(planned_on: MeshEstimate | None) -> str:
+    """The failure of a trial whose planner found no corner adjacent to the held one, saying
+    whether the estimate it planned on (None: not among the trial's) was flagged lost (the
+    planner does not plan on a lost estimate) or the mesh's outline had no such corner."""
+    if planned_on is None:
+        return "the planner found no adjacent corner"
+    if planned_on.lost:
+        return "the planner found no adjacent corner: the estimate planned on was flagged lost"
+    return "the planner found no adjacent corner on the outline of an estimate not flagged lost"
+
+
 def _second_plan(scene, link, config, tracking: _Tracking, reference, held_vertex: int, first_hand) -> tuple:
     """The second grasp for ``config.regrasp``: (plan or None, the canonical distance between
     the two held points in metres, the mesh vertex the plan grasps, details for the record)."""
@@ -129,7 +147,7 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
                             frame.seq, lambda: link.frames_pub.publish(frame))
         usable = [c for c in reply.candidates if c.reachable] or list(reply.candidates)
         if not usable:
-            return None, None, -1, {"reason": "the planner found no adjacent corner"}
+            return None, None, -1, {"reason": no_adjacent_corner(tracking.estimates.get(reply.estimate_seq))}
         best = usable[0]
         distance = float(np.linalg.norm(estimate.canonical[best.plan.vertex_id] - estimate.canonical[held_vertex]))
         return best.plan, distance, int(best.plan.vertex_id), {
@@ -152,7 +170,12 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
     if not isinstance(status, StatusReply) or status.state != "initialising":
         raise RuntimeError(f"perception service did not accept the re-detection ({status})")
     scene.step_coming_to_rest()
-    tracking()
+    try:
+        tracking()
+    except TimeoutError:  # the service refused to build the mesh (it says why in its status)
+        status = link.control.request(StatusRequest(request_id=frame.seq))
+        refused = ", ".join(f"{n} {kind}" for kind, n in sorted(status.rejected_by_kind.items())) or "none"
+        return None, None, -1, {"reason": f"no mesh laid afresh on the hanging cloth (frames rejected: {refused})"}
     fresh = tracking.estimates[tracking.last_seq]
     first_cam = transform_points(invert_transform(scene.T_world_cam), first_hand.gripper.position[None])[0]
     held_new = int(np.argmin(np.linalg.norm(fresh.vertices - first_cam, axis=1)))

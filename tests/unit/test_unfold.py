@@ -4,6 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from ipc.messages import MeshEstimate
+from launch_scripts.trial_runner.unfold import no_adjacent_corner
 from perception.geometry import look_at
 from sim.grasp_execution import move_grippers
 from sim.laundry import LaundryScene, laundry_spec
@@ -164,3 +166,13 @@ def test_the_report_sets_the_ways_of_choosing_the_second_corner_side_by_side():
     assert "first grasps at a corner" in text and "median corner error" not in text
     corner_only = report([{**_unfold_record(0, "x", True, 1.0), "task": "corner"}], "c", {"kind": "corner"})
     assert "by_regrasp" not in corner_only["summary"] and "median corner error" in markdown(corner_only)
+
+
+def test_no_adjacent_corner_says_whether_the_estimate_was_lost():
+    triangle = dict(vertices=np.eye(3), faces=np.array([[0, 1, 2]], np.int32), boundary=np.arange(3, dtype=np.int32),
+                    canonical=np.eye(3))
+    lost = no_adjacent_corner(MeshEstimate(**triangle, lost=True, confidence=0.0))
+    kept = no_adjacent_corner(MeshEstimate(**triangle, confidence=0.9))
+    assert "flagged lost" in lost
+    assert "not flagged lost" in kept
+    assert no_adjacent_corner(None) == "the planner found no adjacent corner"
