@@ -38,6 +38,14 @@ from perception.geometry import pixel_index, project
 from perception.raster import bounding_box
 
 
+def _kept(term, V: np.ndarray, compute):
+    """``compute(V)``, kept in ``term._last`` for the last V: the solver asks for the energy
+    and then the Gauss-Newton model at the same V (never changed in place)."""
+    if term._last is None or term._last[0] is not V:
+        term._last = (V, compute(V))
+    return term._last[1]
+
+
 @dataclass
 class SmoothnessTerm:
     """Psi_S = 1/2 (X^T K X + Y^T K Y + Z^T K Z), paper eq. 10. K : (N, N) sparse."""
@@ -104,10 +112,7 @@ class DepthTerm:
         and the (N,) ray lengths ||v||. The solver asks for the energy and then the
         Gauss-Newton model at the same V, so the last answer is kept (V is never changed
         in place)."""
-        if self._last is not None and self._last[0] is V:
-            return self._last[1]
-        self._last = (V, self._lookup(V))
-        return self._last[1]
+        return _kept(self, V, self._lookup)
 
     def _lookup(self, V: np.ndarray):
         h, w = self.range_m.shape
@@ -198,8 +203,9 @@ class PlaneDepthTerm:
     def lookup(self, V: np.ndarray):
         """Residual (N,) metres, the (N,) bool mask of vertices it applies to and the (N, 3)
         normals there; the last answer is kept, as in ``DepthTerm.lookup``."""
-        if self._last is not None and self._last[0] is V:
-            return self._last[1]
+        return _kept(self, V, self._lookup)
+
+    def _lookup(self, V: np.ndarray):
         h, w = self.known.shape
         cols, rows, inside = pixel_index(project(V, self.K), w, h)
         n = self.normals[rows, cols]
@@ -207,9 +213,7 @@ class PlaneDepthTerm:
         active = inside & self.known[rows, cols] & (np.abs(r) < self.outlier_m)
         if self.vertex_mask is not None:
             active &= self.vertex_mask
-        answer = (np.where(active, r, 0.0), active, np.where(active[:, None], n, 0.0))
-        self._last = (V, answer)
-        return answer
+        return np.where(active, r, 0.0), active, np.where(active[:, None], n, 0.0)
 
     def evaluate(self, V: np.ndarray):
         r, _, n = self.lookup(V)
@@ -247,10 +251,7 @@ class BoundaryTerm:
     def signed_distance(self, V: np.ndarray):
         """For each boundary vertex: signed distance (B,), offset v - q (B, 3), sign (B,), active (B,).
         The last answer is kept, as in ``DepthTerm.lookup``."""
-        if self._last is not None and self._last[0] is V:
-            return self._last[1]
-        self._last = (V, self._signed_distance(V))
-        return self._last[1]
+        return _kept(self, V, self._signed_distance)
 
     def _signed_distance(self, V: np.ndarray):
         n = len(self.vertex_ids)
@@ -313,8 +314,9 @@ class OutsideTerm:
     def offsets(self, V: np.ndarray) -> np.ndarray:
         """(N, 3) v_i - q_i for the vertices seen outside the object, 0 for the others. The
         last answer is kept, as in ``DepthTerm.lookup``."""
-        if self._last is not None and self._last[0] is V:
-            return self._last[1]
+        return _kept(self, V, self._offsets)
+
+    def _offsets(self, V: np.ndarray) -> np.ndarray:
         out = np.zeros_like(V)
         if self._tree is not None:
             h, w = self.mask.shape
@@ -323,7 +325,6 @@ class OutsideTerm:
             if outside.any():
                 _, idx = self._tree.query(V[outside])
                 out[outside] = V[outside] - self.outline_points[idx]
-        self._last = (V, out)
         return out
 
     def evaluate(self, V: np.ndarray):

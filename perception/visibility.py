@@ -52,9 +52,16 @@ def _hidden_by_drawing(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, 
     own = np.any(faces[face] == ids[:, None], axis=1)
     ids, face = ids[~own], face[~own]
     bary = barycentric_2d(uv[ids], uv[faces[face]])
-    z_face = np.einsum("pk,pk->p", bary, vertices[faces[face], 2])
-    hidden[ids] = np.isfinite(z_face) & (z_face < vertices[ids, 2] - margin_m)
+    hidden[ids] = _face_in_front(vertices, faces, ids, face, bary, margin_m)
     return hidden
+
+
+def _face_in_front(vertices: np.ndarray, faces: np.ndarray, ids: np.ndarray, face: np.ndarray, bary: np.ndarray,
+                   margin_m: float) -> np.ndarray:
+    """(P,) bool: face ``face[p]``, at the point of barycentric coordinates ``bary[p]`` (where
+    it covers vertex ``ids[p]``'s pixel), lies more than ``margin_m`` nearer than the vertex."""
+    z_face = np.einsum("pk,pk->p", bary, vertices[faces[face], 2])
+    return np.isfinite(z_face) & (z_face < vertices[ids, 2] - margin_m)
 
 
 def hidden_by_mesh(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, shape: tuple[int, int],
@@ -103,10 +110,9 @@ def hidden_by_mesh(vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, shape
     if len(v) == 0:
         return hidden
     bary = barycentric_2d(uv[v], triangles[f])
-    covers = np.all(bary >= -1e-9, axis=1)
-    z_face = np.einsum("pk,pk->p", np.where(covers[:, None], bary, 0.0), vertices[faces[f], 2])
-    nearer = covers & (z_face < vertices[v, 2] - margin_m)
-    hidden[v[nearer]] = True
+    covers = np.all(bary >= -1e-9, axis=1)  # False for NaN (degenerate faces) too
+    v, f = v[covers], f[covers]
+    hidden[v[_face_in_front(vertices, faces, v, f, bary[covers], margin_m)]] = True
     return hidden
 
 
