@@ -11,7 +11,9 @@ with each frame as the known occluder. The second corner is chosen by
 ``config.regrasp``:
 
 - "adjacent": the planner's ``AdjacentCornersRequest``: the corners next to the held one
-  along the tracked mesh's canonical outline, at their tracked positions;
+  along the tracked mesh's canonical outline, at their tracked positions; the robot takes
+  a reachable one joined to the held corner by a straight edge
+  (``sim.laundry.controller.stretchable_corner``);
 - "lowest": the lowest point of the hanging cloth as the camera sees it (the classic
   regrasp heuristic; ``grasping.lowest_point_grasp``), no tracking needed;
 - "redetect": the perception service is initialised afresh on the hanging cloth and the
@@ -42,7 +44,7 @@ from ipc.messages import (
 from perception.geometry import invert_transform, transform_points
 from sim.grasp_execution import close_fingers, fingertip_target, move_grippers, plan_to_world
 from sim.ground_truth import error_summary, vertex_errors
-from sim.laundry.controller import View, default_controller
+from sim.laundry.controller import View, default_controller, edge_straightness, stretchable_corner
 from sim.laundry.judge import TOLERANCE_M, judge_unfold
 from sim.laundry.pictures import caption, draw_plan, save_png, strip
 from sim.laundry.segment import cloth_points, mask_from_reference
@@ -145,14 +147,15 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
     if config.regrasp == "adjacent":
         reply, _ = link.ask(AdjacentCornersRequest(request_id=frame.seq, held_vertex=held_vertex, max_candidates=2),
                             frame.seq, lambda: link.frames_pub.publish(frame))
-        usable = [c for c in reply.candidates if c.reachable] or list(reply.candidates)
-        if not usable:
+        best = stretchable_corner(reply.candidates, estimate.canonical, held_vertex)
+        if best is None:
             return None, None, -1, {"reason": no_adjacent_corner(tracking.estimates.get(reply.estimate_seq))}
-        best = usable[0]
         distance = float(np.linalg.norm(estimate.canonical[best.plan.vertex_id] - estimate.canonical[held_vertex]))
         return best.plan, distance, int(best.plan.vertex_id), {
             "side": best.side, "visible": round(best.visible, 3),
-            "material_distance_m": round(best.material_distance_m, 4), "n_candidates": len(reply.candidates)}
+            "material_distance_m": round(best.material_distance_m, 4),
+            "straightness": round(edge_straightness(best, estimate.canonical, held_vertex), 3),
+            "n_candidates": len(reply.candidates)}
     if config.regrasp == "lowest":
         from grasping import lowest_point_grasp
 

@@ -1,17 +1,22 @@
 """The unfold task's pieces: which corners share an edge, the judge, the robot's motions, its drawn hands."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from grasping import GraspPlanner, adjacent_corners
 from ipc.messages import MeshEstimate
 from launch_scripts.trial_runner.unfold import no_adjacent_corner
 from perception.geometry import look_at
 from sim.grasp_execution import move_grippers
 from sim.laundry import LaundryScene, laundry_spec
+from sim.laundry.controller import MIN_EDGE_STRAIGHTNESS, edge_straightness, stretchable_corner
 from sim.laundry.judge import MIN_STRETCH, TOLERANCE_M, judge_unfold
 from sim.laundry.truth import rectangle_corners_uv, share_an_edge
 from sim.laundry.unfold import UnfoldConfig, arm_for, lift_target, shoulders, stretch_targets
+from tests.unit.test_grasp_adjacent import polygon_corner_of, towel_estimate, tshirt_estimate
 
 TOWEL, _ = rectangle_corners_uv(0.5, 0.4)
 
@@ -54,6 +59,35 @@ def test_unfold_fails_for_the_right_reason(second, apart, clear, reason):
 def test_a_gripper_that_holds_nothing_fails():
     verdict = judge_unfold("towel", TOWEL[0], None, 0.0, True, TOWEL)
     assert not verdict.success and verdict.second_corner == -1 and "second gripper" in verdict.reason
+
+
+def test_held_by_a_hem_corner_a_shirt_is_stretched_along_its_hem_not_up_its_side():
+    # Outline points of the T-shirt (tests/unit/test_grasp_adjacent.py): right cuff bottom
+    # 11, right hem 13, left hem 14. From the right hem corner the outline leads along the
+    # hem to 14 and up the side seam, past the armpit, to 11: both are adjacent along the
+    # outline, but only the hem is an edge that pulling the two corners apart stretches.
+    est, outline = tshirt_estimate()
+    corners = GraspPlanner().corners(est)
+    held = int(corners[polygon_corner_of(est, corners, outline).index(13)])
+    candidates = adjacent_corners(est, held).candidates
+    assert sorted(polygon_corner_of(est, [c.plan.vertex_id for c in candidates], outline)) == [11, 14]
+    straightness = {polygon_corner_of(est, [c.plan.vertex_id], outline)[0]: edge_straightness(c, est.canonical, held)
+                    for c in candidates}
+    assert straightness[14] > 0.97 and straightness[11] < MIN_EDGE_STRAIGHTNESS
+    for order in (candidates, candidates[::-1]):  # whichever the planner ranks first
+        chosen = stretchable_corner(order, est.canonical, held)
+        assert polygon_corner_of(est, [chosen.plan.vertex_id], outline) == [14]
+    assert stretchable_corner((), est.canonical, held) is None
+
+
+def test_a_reachable_corner_comes_before_a_straight_edge():
+    est = towel_estimate()
+    held = int(GraspPlanner().corners(est)[0])
+    first, second = adjacent_corners(est, held).candidates
+    assert edge_straightness(first, est.canonical, held) > 0.97 and edge_straightness(second, est.canonical, held) > 0.97
+    assert stretchable_corner((first, second), est.canonical, held) is first
+    out_of_reach = dataclasses.replace(first, reachable=False)
+    assert stretchable_corner((out_of_reach, second), est.canonical, held) is second
 
 
 def test_lift_target_leaves_the_cloth_hanging_clear():
