@@ -12,11 +12,10 @@ eight OpenCV rational coefficients k1 k2 p1 p2 k3 k4 k5 k6 of
 The SDK (1.4) runs that transformation on the GPU through OpenGL: it needs an X display (on a
 headless machine Xvfb with Mesa's software OpenGL serves). Its transformation thread sometimes
 returns without having written the output, which then holds whatever the memory held (with
-Mesa's software OpenGL up to four calls in ten made straight after the previous one, none of
-calls 50 ms apart). So
-each transformation carries a fresh token through the SDK's custom channel
-(``depth_image_to_color_camera_custom``, nearest-neighbour) and is redone when a measured
-pixel of the output does not carry it.
+Mesa's software OpenGL up to four in ten calls made straight after the previous one; none of
+calls 50 ms apart). So each transformation carries a fresh token through the SDK's custom
+channel (``depth_image_to_color_camera_custom``, nearest-neighbour) and is redone when a
+measured pixel of the output does not carry it.
 
 A recording (``.mkv`` as the Azure Kinect recorder ``k4arecorder`` writes it, or any k4a
 recording with a colour track, a depth track and the device calibration) plays through
@@ -60,6 +59,7 @@ FRAME_RATES = {5: "FPS_5", 15: "FPS_15", 30: "FPS_30"}
 #: Colour formats this source turns into RGB (pyk4a ImageFormat member names).
 COLOUR_FORMATS = ("COLOR_BGRA32", "COLOR_MJPG", "COLOR_NV12", "COLOR_YUY2")
 
+#: KinectSource's device options and their defaults, which a recording leaves as they are.
 _DEFAULTS = {"colour_resolution": "720p", "depth_mode": "nfov_unbinned", "fps": 30, "device_id": 0}
 
 
@@ -120,9 +120,9 @@ class DepthToColour:
     up to ATTEMPTS times. An output without any measurement is taken when the input has none,
     or when it comes twice in a row (the measured points are all outside the colour camera's
     view; an unwritten output may hold zeros too). ``redone`` counts the redone
-    transformations. The SDK's thread takes
-    requests under a lock the next call waits for, so an output it returned unwritten can be
-    written until the next call: the latest output stays referenced until then.
+    transformations. The SDK's thread takes requests under a lock the next call waits for, so
+    an output it returned unwritten can still be written until the next call: the latest
+    output stays referenced until then.
     """
 
     ATTEMPTS = 8
@@ -165,7 +165,7 @@ class DepthToColour:
 
 def _cannot_transform(error) -> str:
     display = os.environ.get("DISPLAY")
-    where = (f"the X display {display} has no usable OpenGL 4.4 (see the SDK's log)" if display else
+    where = (f"the X display {display} has no OpenGL the SDK can use (see the SDK's log)" if display else
              "DISPLAY is not set: on a machine without a screen run under Xvfb, e.g. xvfb-run -a COMMAND")
     detail = f"; {error}" if error else ""
     return (f"Kinect: the SDK cannot transform depth into the colour camera (SDK 1.4 does it with OpenGL on an "
