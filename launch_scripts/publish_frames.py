@@ -4,7 +4,9 @@
                                             [--known-occluders] [--no-occluders]
     python -m launch_scripts.publish_frames sequence SEQ
     python -m launch_scripts.publish_frames realsense [--width W --height H --fps F] [--serial SN | --recording FILE.db3]
-    python -m launch_scripts.publish_frames kinect [--colour-resolution 720p] [--depth-mode nfov_unbinned]
+    python -m launch_scripts.publish_frames kinect [--colour-resolution 720p] [--depth-mode nfov_unbinned] [--fps F]
+                                                   [--device N]
+    python -m launch_scripts.publish_frames kinect --recording FILE.mkv
     python -m launch_scripts.publish_frames rosbag BAG --rgb-topic T --depth-topic T --info-topic T
 
 Options for every source, after the source's name: --endpoint, --pacing
@@ -52,7 +54,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=f"endpoint to bind (default {endpoints.FRAMES}; tcp://127.0.0.1:* picks a free port)")
     g.add_argument("--pacing", choices=Pacing.MODES,
                    help="realtime: keep the spacing of the frames' timestamps (default for files and sim); "
-                        "rate: --rate-hz; fast: no wait (default for cameras, which pace themselves)")
+                        "rate: --rate-hz; fast: no wait (default for cameras, which pace themselves, and RealSense "
+                        "recordings, which the SDK plays at their pace)")
     g.add_argument("--rate-hz", type=float, help="frames per second with --pacing rate")
     g.add_argument("--loop", action="store_true", help="start over at the end (files and sim)")
     g.add_argument("--max-frames", type=positive_int, help="stop after this many frames")
@@ -97,6 +100,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--depth-mode", choices=KinectSource.DEPTH_MODES, default="nfov_unbinned")
     p.add_argument("--fps", type=int, choices=KinectSource.FRAME_RATES, default=30)
     p.add_argument("--device", type=int, default=0, help="device index (default 0)")
+    p.add_argument("--recording", metavar="FILE",
+                   help="play a k4a recording (.mkv, e.g. from k4arecorder) instead of a device; it has its own "
+                        "resolution, depth mode and rate")
 
     p = sub.add_parser("rosbag", parents=[common], help="a ROS 1 or ROS 2 bag (rosbags)")
     p.add_argument("path", help="the bag (.bag file or ROS 2 bag folder)")
@@ -121,8 +127,17 @@ def open_source(args):
     if args.source == "realsense":
         return RealSenseSource(args.width, args.height, args.fps, serial=args.serial, recording=args.recording)
     if args.source == "kinect":
-        return KinectSource(args.colour_resolution, args.depth_mode, args.fps, device_id=args.device)
+        return KinectSource(args.colour_resolution, args.depth_mode, args.fps, device_id=args.device,
+                            recording=args.recording)
     return RosbagSource(args.path, args.rgb_topic, args.depth_topic, args.info_topic)
+
+
+def default_pacing(args) -> str:
+    """The pacing mode when --pacing is not given: "fast" for cameras, which deliver frames at their
+    own rate, and RealSense recordings, which the SDK plays at the recorded pace; "realtime" for
+    everything read as fast as asked (sim, sequences, bags, Kinect recordings)."""
+    camera_paced = args.source == "realsense" or (args.source == "kinect" and not args.recording)
+    return "fast" if camera_paced else "realtime"
 
 
 def main(argv=None) -> int:
@@ -134,7 +149,7 @@ def main(argv=None) -> int:
 
     try:
         curve = curve_keys_from_args(args, [args.endpoint])
-        pacing = Pacing(args.pacing or ("fast" if args.source in ("realsense", "kinect") else "realtime"), args.rate_hz)
+        pacing = Pacing(args.pacing or default_pacing(args), args.rate_hz)
         with open_source(args) as source:
             run_publisher(source, args.endpoint, pacing=pacing, loop=args.loop, max_frames=args.max_frames,
                           start_delay_s=args.start_delay_s, heartbeat_period_s=args.heartbeat_period_s, stop=stop,

@@ -6,7 +6,7 @@ camera), ``depth_scale`` tells how to quantise depth on the wire, ``close()`` re
 
 - ``SequenceSource``: a recorded sequence folder.
 - ``RealSenseSource``: an Intel RealSense camera (optional ``pyrealsense2``, extra "realsense").
-- ``KinectSource``: an Azure Kinect (optional ``pyk4a``, extra "kinect").
+- ``KinectSource``: an Azure Kinect, or a recording of one (optional ``pyk4a``, extra "kinect").
 - ``RosbagSource``: a ROS 1/2 bag's Image and CameraInfo topics (optional ``rosbags``, extra "rosbag").
 
 ``publish_frames(source, publish, pacing=..., loop=...)`` paces frames to any callable;

@@ -58,8 +58,11 @@ def test_a_sequence_travels_with_its_depth_units_and_name(tmp_path):
 
 def test_publish_frames_command_fails_with_one_line(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(REPO)}
+    (tmp_path / "a.mkv").write_bytes(b"")
     for args, message in ((["sequence", str(tmp_path / "none")], "no such directory"),
-                          (["sequence", str(tmp_path), "--pacing", "rate"], "Pacing.rate_hz")):
+                          (["sequence", str(tmp_path), "--pacing", "rate"], "Pacing.rate_hz"),
+                          (["kinect", "--recording", str(tmp_path / "none.mkv")], "none.mkv not found"),
+                          (["kinect", "--recording", str(tmp_path / "a.mkv"), "--fps", "15"], "own colour resolution")):
         proc = subprocess.run([sys.executable, "-m", "launch_scripts.publish_frames", *args], capture_output=True,
                               text=True, cwd=REPO, env=env, timeout=60)
         assert proc.returncode == 2

@@ -11,6 +11,7 @@ import types
 from enum import IntEnum
 from types import SimpleNamespace
 
+import cv2
 import numpy as np
 import pytest
 
@@ -25,6 +26,7 @@ from perception.sources import (
     SourceError,
     publish_frames,
 )
+from perception.sources._kinect import rgb_from_kinect
 
 CAM = CameraInfo.from_fov(32, 24, 1.0)
 
@@ -364,11 +366,26 @@ class FakeKinect:
         bgra = np.zeros((720, 1280, 4), np.uint8)
         bgra[..., 0], bgra[..., 1], bgra[..., 2], bgra[..., 3] = 10, 20, 30, 255
         bgra[5, 7] = (1, 2, 3, 255)
-        depth = np.full((720, 1280), 1500, np.uint16)
+        depth = np.full((720, 1280), 1500, np.uint16)  # in the colour camera: what the SDK's transformation gives
         depth[0, :] = 0
+        raw = np.full((576, 640), 1500, np.uint16)  # in the depth camera
         self.bgra, self.depth_mm = bgra, depth
-        self.captures = [SimpleNamespace(color=None, transformed_depth=depth, color_timestamp_usec=0),
-                         SimpleNamespace(color=bgra, transformed_depth=depth, color_timestamp_usec=2_500_000)]
+        self.captures = [SimpleNamespace(color=None, depth=raw, color_timestamp_usec=0),
+                         SimpleNamespace(color=bgra, depth=raw, color_timestamp_usec=2_500_000)]
+        self.unwritten = 0  # calls that return an unwritten output (as the SDK's transformation thread can)
+        self.transform_calls = 0
+        rng = np.random.default_rng(0)
+
+        def depth_image_to_color_camera_custom(depth_mm, custom, calibration, thread_safe):
+            assert depth_mm is raw and custom.shape == raw.shape and custom.dtype == np.uint16
+            fake.transform_calls += 1
+            if fake.unwritten:
+                fake.unwritten -= 1  # what the memory held: an older output, with an older token
+                stale = rng.integers(0, 3000, depth.shape).astype(np.uint16)
+                return np.where(stale > 0, custom[0, 0] - 1, 0).astype(np.uint16), stale
+            return np.where(depth > 0, custom[0, 0], 0).astype(np.uint16), depth.copy()
+
+        k4a.depth_image_to_color_camera_custom = depth_image_to_color_camera_custom
 
         class Calibration:
             def get_camera_matrix(self, camera):
@@ -421,3 +438,87 @@ def test_kinect_options_are_checked(monkeypatch):
         KinectSource("4k")
     with pytest.raises(ValueError, match="KinectSource.fps: expected one of 5, 15, 30, got 60"):
         KinectSource(fps=60)
+
+
+def test_a_kinect_recording_is_checked_before_the_sdk_is_needed(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "pyk4a", None)  # no SDK: these fail on the arguments alone
+    with pytest.raises(SourceError, match=r"^Kinect: recording .*missing\.mkv not found$"):
+        KinectSource(recording=tmp_path / "missing.mkv")
+    with pytest.raises(SourceError, match=r"^Kinect: recording .* is not a file$"):
+        KinectSource(recording=tmp_path)
+    (tmp_path / "a.mkv").write_bytes(b"")
+    with pytest.raises(ValueError, match=r"a recording has its own .*; got colour_resolution='1080p', fps=15 with "
+                                         r"recording='.*a\.mkv'"):
+        KinectSource("1080p", fps=15, recording=tmp_path / "a.mkv")
+    with pytest.raises(ValueError, match="got device_id=1 with"):
+        KinectSource(device_id=1, recording=tmp_path / "a.mkv")
+    with pytest.raises(SourceError, match=r"clothkit\[kinect\]"):  # a good file: now the SDK is needed
+        KinectSource(recording=tmp_path / "a.mkv")
+
+
+def test_a_kinect_recording_is_published_at_its_recorded_pace_by_default():
+    from launch_scripts.publish_frames import build_parser, default_pacing
+
+    def pacing(*argv):
+        return default_pacing(build_parser().parse_args(argv))
+
+    # The SDK reads a Kinect recording as fast as asked; a RealSense recording plays at its pace.
+    assert pacing("kinect", "--recording", "a.mkv") == "realtime" and pacing("kinect") == "fast"
+    assert pacing("realsense", "--recording", "a.db3") == "fast" and pacing("sequence", "SEQ") == "realtime"
+
+
+def test_kinect_redoes_a_transformation_the_sdk_returned_unwritten(monkeypatch):
+    fake = FakeKinect()
+    fake.unwritten = 2
+    capture = fake.captures[1]
+    monkeypatch.setitem(sys.modules, "pyk4a", fake.k4a)
+    with KinectSource() as src:
+        f = next(src.frames())
+        np.testing.assert_array_equal(f.depth_m, fake.depth_mm / np.float32(1000))
+        assert src.transformations_redone == 2 and fake.transform_calls == 3
+        fake.unwritten, fake.captures = 100, [capture]
+        with pytest.raises(SourceError, match="returned an unwritten output 8 times in a row"):
+            next(src.frames())
+
+
+def test_kinect_without_a_working_transformation_says_what_it_needs(monkeypatch):
+    fake = FakeKinect()
+    fake.k4a.depth_image_to_color_camera_custom = lambda *args: None  # what pyk4a returns when the SDK call fails
+    monkeypatch.setitem(sys.modules, "pyk4a", fake.k4a)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    with KinectSource() as src, pytest.raises(SourceError, match=r"cannot transform depth .*DISPLAY is not set: .*Xvfb"):
+        next(src.frames())
+
+
+def kinect_colour(rgb, fmt):
+    """An RGB image as the Azure Kinect delivers it in ``fmt`` (OpenCV's encoders)."""
+    h, w = rgb.shape[:2]
+    if fmt == "COLOR_BGRA32":
+        return cv2.cvtColor(rgb, cv2.COLOR_RGB2BGRA)
+    if fmt == "COLOR_MJPG":
+        return cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])[1].ravel()
+    if fmt == "COLOR_NV12":
+        i420 = cv2.cvtColor(rgb, cv2.COLOR_RGB2YUV_I420).ravel()
+        uv = np.stack([i420[h * w:h * w * 5 // 4], i420[h * w * 5 // 4:]], axis=1).ravel()
+        return np.concatenate([i420[:h * w], uv]).reshape(h * 3 // 2, w, 1)
+    return cv2.cvtColor(rgb, cv2.COLOR_RGB2YUV_YUY2)
+
+
+@pytest.mark.parametrize("fmt, tolerance", [("COLOR_BGRA32", 0), ("COLOR_MJPG", 3), ("COLOR_NV12", 3), ("COLOR_YUY2", 3)])
+def test_kinect_colour_formats_become_rgb(fmt, tolerance):
+    h, w = 48, 64
+    rgb = np.zeros((h, w, 3), np.uint8)
+    rgb[..., 0], rgb[..., 1], rgb[..., 2] = 200, np.arange(w)[None, :] * 2, np.arange(h)[:, None]
+    got = rgb_from_kinect(kinect_colour(rgb, fmt), fmt, (h, w))
+    assert got.shape == (h, w, 3) and got.dtype == np.uint8
+    assert np.abs(got.astype(int) - rgb).mean() <= tolerance
+
+
+def test_kinect_colour_that_cannot_be_used_is_named():
+    assert rgb_from_kinect(np.frombuffer(b"\xff\xd8 not a jpeg", np.uint8), "COLOR_MJPG", (48, 64)) is None
+    with pytest.raises(SourceError, match=r"expected a \(48, 64, 4\) uint8 COLOR_BGRA32 colour image, got \(48, 64, 3\)"):
+        rgb_from_kinect(np.zeros((48, 64, 3), np.uint8), "COLOR_BGRA32", (48, 64))
+    with pytest.raises(SourceError, match=r"an MJPG colour image decodes to 32x16, expected 64x48"):
+        rgb_from_kinect(kinect_colour(np.zeros((16, 32, 3), np.uint8), "COLOR_MJPG"), "COLOR_MJPG", (48, 64))
+    with pytest.raises(SourceError, match="colour format CUSTOM16 is not supported"):
+        rgb_from_kinect(np.zeros((48, 64), np.uint16), "CUSTOM16", (48, 64))
