@@ -295,16 +295,20 @@ class OutsideTerm:
     is a boundary vertex near the outline, no other pull: the part of a mesh left behind
     stays behind, held only by the stretch of its edges. This pulls every such vertex to
     the object's outline; a vertex hidden behind something nearer is not seen and not pulled.
+    Nor is one on a pixel without measured depth: a cloth seen at a grazing angle loses its
+    depth there and so falls out of the segmented object without being anywhere else.
 
     outline_points : (P, 3) float64 metres, the object's outline in 3D
     mask : (H, W) bool object mask; K : (3, 3)
     vertex_mask : (N,) bool, the vertices seen (the only ones the term may pull)
+    measured : (H, W) bool, the pixels with measured depth, or None for all
     """
 
     outline_points: np.ndarray
     mask: np.ndarray
     K: np.ndarray
     vertex_mask: np.ndarray
+    measured: np.ndarray | None = None
     name: str = "outside"
 
     def __post_init__(self):
@@ -322,6 +326,8 @@ class OutsideTerm:
             h, w = self.mask.shape
             cols, rows, inside = pixel_index(project(V, self.K), w, h)
             outside = self.vertex_mask & inside & ~self.mask[rows, cols]
+            if self.measured is not None:
+                outside &= self.measured[rows, cols]
             if outside.any():
                 _, idx = self._tree.query(V[outside])
                 out[outside] = V[outside] - self.outline_points[idx]

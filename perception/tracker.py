@@ -71,7 +71,7 @@ from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
 from perception.raster import faces_mask
 from perception.registration import GlobalRegistration
-from perception.segmentation import SegmentationConfig, find_by_colour, find_object, segment_tracked
+from perception.segmentation import SegmentationConfig, find_by_colour, find_object, segment_tracked, valid_depth
 from perception.solver import METHODS, SemiImplicitSolver
 from perception.visibility import NO_DEPTH, OCCLUDED, VISIBLE, classify_vertices, face_states
 
@@ -484,7 +484,8 @@ class MeshTracker:
         if cfg.use_boundary and len(obs.outline_cam):
             terms.append((cfg.lambda_b, self._boundary_term(obs, self._g0, observed)))
         if cfg.lambda_o > 0 and observed is not None and len(obs.outline_cam):
-            terms.append((cfg.lambda_o, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed)))
+            measured = None if frame is None else valid_depth(frame.depth_m)
+            terms.append((cfg.lambda_o, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed, measured)))
         if observed is not None and prior is not None and cfg.lambda_m > 0 and not observed.all():
             terms.append((cfg.lambda_m, MotionPriorTerm.around(self._edges, ~observed, prior)))
         if cfg.lambda_l > 0 and self._stretch is not None:

@@ -270,6 +270,18 @@ def test_outside_pulls_seen_vertices_off_the_object_to_its_outline_and_no_others
     assert g[0, 0] > 0  # descent (-g) moves it toward -x, onto the object
 
 
+def test_outside_leaves_vertices_on_pixels_without_depth_where_they_are():
+    # a cloth seen at a grazing angle loses its depth and so falls out of the segmented
+    # object: a vertex there is not known to be off the object, and is not pulled
+    outline, mask = outline_square(1.2)
+    measured = np.ones(mask.shape, bool)
+    measured[:, 320 + int(0.12 / 1.2 * 500):] = False  # no depth from 12 cm right of the centre on
+    V = np.array([[0.11, 0.0, 1.2], [0.15, 0.0, 1.2], [-0.15, 0.0, 1.2]])  # measured, depthless, measured
+    pull = np.linalg.norm(OutsideTerm(outline, mask, K, np.ones(3, bool), measured).evaluate(V)[1], axis=1)
+    assert pull[0] > 0 and pull[2] > 0 and pull[1] == 0
+    assert np.linalg.norm(OutsideTerm(outline, mask, K, np.ones(3, bool)).evaluate(V)[1], axis=1)[1] > 0
+
+
 def test_match_gated_follows_the_papers_rules():
     from perception.features import Keypoints, match_gated
 
