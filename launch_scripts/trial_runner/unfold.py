@@ -162,8 +162,11 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
         points = cloth_points(frame, _cloth_seen(frame, reference), reference)
         if len(points) < 3:
             return None, None, -1, {"reason": "no cloth seen below the gripper"}
-        plan = lowest_point_grasp(points, scene.T_world_cam, frame_id=frame.camera.frame_id,
-                                  timestamp_s=frame.timestamp_s)
+        try:
+            plan = lowest_point_grasp(points, scene.T_world_cam, frame_id=frame.camera.frame_id,
+                                      timestamp_s=frame.timestamp_s)
+        except ValueError as exc:  # a few scattered points, no surface to grasp
+            return None, None, -1, {"reason": f"no lowest point on the cloth seen below the gripper ({exc})"}
         k = int(np.argmin(np.linalg.norm(estimate.vertices - plan.position, axis=1)))
         return plan, float(np.linalg.norm(estimate.canonical[k] - estimate.canonical[held_vertex])), k, {}
     # redetect: a fresh mesh on the hanging cloth, the planner's best corner away from the first gripper

@@ -210,3 +210,28 @@ def test_no_adjacent_corner_says_whether_the_estimate_was_lost():
     assert "flagged lost" in lost
     assert "not flagged lost" in kept
     assert no_adjacent_corner(None) == "the planner found no adjacent corner"
+
+
+def test_the_lowest_point_baseline_records_why_when_only_specks_of_cloth_are_seen():
+    from types import SimpleNamespace
+
+    from ipc.messages import CameraInfo, RGBDFrame
+    from launch_scripts.trial_runner.unfold import _second_plan
+
+    K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+    camera = CameraInfo(width=640, height=480, K=K)
+    wall = np.full((480, 640), 2.0, np.float32)
+    reference = RGBDFrame(rgb=np.full((480, 640, 3), 90, np.uint8), depth_m=wall, camera=camera)
+    # a patch of cloth colour whose depth is the wall's but for five scattered pixels nearer
+    rgb, depth = reference.rgb.copy(), wall.copy()
+    rgb[200:230, 300:330] = (200, 40, 40)
+    for k in range(5):
+        depth[202 + 6 * k, 302 + 6 * k] = 1.5
+    frame = RGBDFrame(rgb=rgb, depth_m=depth, camera=camera, seq=7)
+    estimate = SimpleNamespace(vertices=np.zeros((3, 3)), canonical=np.zeros((3, 3)))
+    tracking = SimpleNamespace(frames={"last": frame}, estimates={7: estimate})
+    scene = SimpleNamespace(T_world_cam=np.eye(4))
+    config = SimpleNamespace(regrasp="lowest")
+    plan, distance, vertex, details = _second_plan(scene, None, config, tracking, reference, 0, None)
+    assert plan is None and vertex == -1
+    assert details["reason"].startswith("no lowest point on the cloth seen below the gripper (Expected a cloth")
