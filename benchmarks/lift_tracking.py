@@ -1,6 +1,6 @@
 """Tracking a cloth lifted off a table by one corner: the tracker's error during the lift and
 while the cloth hangs, with and without what the robot knows (its empty table, the vertex it
-holds and where) and the stretch term.
+holds and where, the material point hanging lowest and where) and the stretch term.
 
     python benchmarks/lift_tracking.py --seeds 2 4 22 [--state flat] [--markdown OUT.md]
 
@@ -34,17 +34,19 @@ from perception.geometry import invert_transform, transform_points  # noqa: E402
 from perception.tracker import MeshTracker  # noqa: E402
 from sim.ground_truth import bind_to_surface, surface_points, vertex_errors  # noqa: E402
 
-#: The variants: (name, changes to the unfold trials' tracker, send the background, send the hold).
+#: The variants: (name, changes to the unfold trials' tracker, send the background, send the
+#: hold, send the lowest point while the cloth hangs at rest: ``perception.hanging.HangingCue``).
 #: That tracker measures depth along the surface's normal and has the fold test
 #: (``self_occlusion``) and the outside term (``lambda_o``); two variants go without them.
 VARIANTS = (
-    ("without the stretch term", {"lambda_l": 0.0}, False, False),
-    ("+ stretch term", {}, False, False),
-    ("+ background, hold", {"lambda_l": 0.0}, True, True),
+    ("without the stretch term", {"lambda_l": 0.0}, False, False, False),
+    ("+ stretch term", {}, False, False, False),
+    ("+ background, hold", {"lambda_l": 0.0}, True, True, False),
     ("+ stretch, background, hold; depth along rays, no fold test, no outside term",
-     {"depth_residual": "ray", "self_occlusion": False, "lambda_o": 0.0}, True, True),
-    ("+ stretch, background, hold; depth along rays", {"depth_residual": "ray"}, True, True),
-    ("+ stretch, background, hold (the unfold trials' tracker)", {}, True, True),
+     {"depth_residual": "ray", "self_occlusion": False, "lambda_o": 0.0}, True, True, False),
+    ("+ stretch, background, hold; depth along rays", {"depth_residual": "ray"}, True, True, False),
+    ("+ stretch, background, hold", {}, True, True, False),
+    ("+ stretch, background, hold, lowest point (the unfold trials')", {}, True, True, True),
 )
 
 
@@ -92,7 +94,8 @@ def record_lift(seed: int, state: str | None) -> dict:
             scene.step_coming_to_rest()
             on_frame()
         out.update(reference=reference, mask=mask_from_reference(out["frames"][0], reference), faces=scene.faces,
-                   corners=scene.corner_vertices(), first=first, describe=spec.describe())
+                   corners=scene.corner_vertices(), first=first, describe=spec.describe(),
+                   T_world_cam=scene.T_world_cam, table_top_m=top)
     out["truth"] = np.stack(out["truth"])
     return out
 
@@ -103,18 +106,26 @@ def _off_surface(points: np.ndarray, true_vertices: np.ndarray, faces: np.ndarra
     return np.linalg.norm(points - nearest, axis=1)
 
 
-def track(lift: dict, changes: dict, background: bool, hold: bool) -> dict:
+def track(lift: dict, changes: dict, background: bool, hold: bool, lowest: bool) -> dict:
     """Track the recorded lift with the unfold trials' tracker changed by ``changes``."""
     from launch_scripts.trial_runner.trial import UNFOLD_TRACKER
+    from perception.hanging import HangingCue
+    from sim.laundry import seen_cloth_points
 
     tracker = MeshTracker(dataclasses.replace(UNFOLD_TRACKER, **changes))
     frames, truth = lift["frames"], lift["truth"]
     first = tracker.initialise(frames[0], lift["mask"], background=lift["reference"] if background else None)
     held = int(np.argmin(np.linalg.norm(first.vertices - truth[0][lift["corners"][lift["first"]]], axis=1)))
+    cue = HangingCue(first.canonical, first.faces, held, lift["T_world_cam"], support_height_m=lift["table_top_m"])
     estimates = [first]
     for frame, grip in zip(frames[1:], lift["grip"][1:]):
         if hold and grip is not None:
-            frame = dataclasses.replace(frame, held_vertices=np.array([held]), held_points_m=grip[None])
+            ids, points = [held], [grip]
+            low = cue.update(seen_cloth_points(frame, lift["reference"]), grip) if lowest else None
+            if low is not None:
+                ids.append(low[0])
+                points.append(low[1])
+            frame = dataclasses.replace(frame, held_vertices=np.array(ids), held_points_m=np.stack(points))
         estimates.append(tracker.track(frame))
     errors = vertex_errors(np.stack([e.vertices for e in estimates]), truth, lift["faces"])
     phases = np.array(lift["phase"])
@@ -144,8 +155,8 @@ def main(argv=None) -> int:
     results = {name: [] for name, *_ in VARIANTS}
     for seed in tqdm(args.seeds, desc="lifts", unit="seed"):
         lift = record_lift(seed, args.state or None)
-        for name, changes, background, hold in VARIANTS:
-            r = track(lift, changes, background, hold)
+        for name, changes, background, hold, lowest in VARIANTS:
+            r = track(lift, changes, background, hold, lowest)
             results[name].append(r)
             rows.append(f"| {seed} | {lift['describe'].split(': ', 1)[1]} | {name} | {r['lift_mm']:.0f} | "
                         f"{r['hang_mm']:.0f} | {r['hang_surface_mm']:.0f} | {r['held_corner_mm']:.0f} | "

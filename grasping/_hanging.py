@@ -24,7 +24,6 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ipc.messages import GraspPlan
 from perception.geometry import (
@@ -35,6 +34,7 @@ from perception.geometry import (
     frames_from_z_and_x,
     quaternion_xyzw_from_matrix,
 )
+from perception.hanging import lowest_point
 
 log = logging.getLogger(__name__)
 
@@ -78,23 +78,10 @@ def lowest_point_grasp(points_cam, T_world_cam, up_world=(0.0, 0.0, 1.0), min_ne
         raise ValueError(f"Expected points_cam with at least 3 points, got {len(points)}")
     T = check_transform("T_world_cam", T_world_cam)
     up_cam = T[:3, :3].T @ check_vector("up_world", up_world, unit=True)
-    if isinstance(min_neighbours, bool) or int(min_neighbours) != min_neighbours or min_neighbours < 0:
-        raise ValueError(f"Expected min_neighbours an integer >= 0, got {min_neighbours}")
-    support_radius_m = check_positive("support_radius_m", support_radius_m)
     inset_m = check_positive("inset_m", inset_m)
     neighbourhood_m = check_positive("neighbourhood_m", neighbourhood_m)
     opening_width_m = check_positive("opening_width_m", opening_width_m)
-
-    height = points @ up_cam  # height differences are the same in both frames
-    tree = cKDTree(points)
-    tip = None
-    for k in np.argsort(height, kind="stable"):
-        if len(tree.query_ball_point(points[k], support_radius_m)) > min_neighbours:  # the point itself counts too
-            tip = points[k]
-            break
-    if tip is None:
-        raise ValueError(f"Expected a cloth: no point of {len(points)} has {min_neighbours} others within "
-                         f"{support_radius_m} m")
+    tip = lowest_point(points, up_cam, min_neighbours, support_radius_m)
 
     # Closing direction: across the cloth at its tip, i.e. the horizontal part of the
     # normal of the plane through the nearby points; where that is too short (the cloth

@@ -126,10 +126,12 @@ class RGBDFrame:
         a hand) covers the image, or None when nothing is known; integers are taken as
         non-zero. The tracker never binds the object to these pixels.
     held_vertices : (K,) int32, ids of the tracked mesh's vertices (of ``MeshEstimate.canonical``)
-        that the robot holds in its grippers, or None when it holds nothing (e.g. the
-        ``vertex_id`` of the grasp plan it executed)
+        that the robot holds in its grippers (e.g. the ``vertex_id`` of the grasp plan it
+        executed) or whose place it knows as surely (e.g. the material point a cloth hanging
+        from one gripper has lowest: ``perception.hanging``), or None when it holds nothing
     held_points_m : (K, 3) float64 metres, in this frame's camera frame: where the robot's
-        grippers hold them at this frame's time, from its own kinematics; given with
+        grippers hold them at this frame's time, from its own kinematics, or where it knows
+        them to be; given with
         ``held_vertices`` (both or neither). The tracker keeps those vertices there.
     """
 

@@ -12,8 +12,9 @@ with each frame as the known occluder. The second corner is chosen by
 
 - "adjacent": the planner's ``AdjacentCornersRequest``: the corners next to the held one
   along the tracked mesh's canonical outline, at their tracked positions; the robot takes
-  a reachable one joined to the held corner by a straight edge
-  (``sim.laundry.controller.stretchable_corner``);
+  a reachable one joined to the held corner by a straight edge and seen by the camera
+  (``sim.laundry.controller.stretchable_corner``), and grasps nothing when the one it would
+  take was not seen (``MIN_CORNER_VISIBLE``);
 - "lowest": the lowest point of the hanging cloth as the camera sees it (the classic
   regrasp heuristic; ``grasping.lowest_point_grasp``), no tracking needed;
 - "redetect": the perception service is initialised afresh on the hanging cloth and the
@@ -42,12 +43,19 @@ from ipc.messages import (
     StatusRequest,
 )
 from perception.geometry import invert_transform, transform_points
+from perception.hanging import HangingCue
 from sim.grasp_execution import close_fingers, fingertip_target, move_grippers, plan_to_world
 from sim.ground_truth import error_summary, vertex_errors
-from sim.laundry.controller import View, default_controller, edge_straightness, stretchable_corner
+from sim.laundry.controller import (
+    MIN_CORNER_VISIBLE,
+    View,
+    default_controller,
+    edge_straightness,
+    stretchable_corner,
+)
 from sim.laundry.judge import TOLERANCE_M, judge_unfold
 from sim.laundry.pictures import caption, draw_plan, save_png, strip
-from sim.laundry.segment import cloth_points, mask_from_reference
+from sim.laundry.segment import cloth_seen, mask_from_reference, seen_cloth_points
 from sim.laundry.truth import nearest_corner
 from sim.laundry.unfold import arm_for, lift_target, second_fingertip, stretch_targets
 
@@ -61,12 +69,16 @@ class _Tracking:
     """Every frame from now on: rendered, sent to the perception service, its estimate kept.
 
     Keeps per frame the estimate's vertices, the true cloth, confidence, ``lost`` and the
-    tracking time; frames themselves only where a picture is taken (``keep``).
+    tracking time; frames themselves only where a picture is taken (``keep``). Each frame
+    carries what the robot holds and where (``holds``) and, while one hand holds the cloth
+    and it hangs at rest, the material point it has lowest and where (``hanging``, on the
+    cloth seen against ``reference``, the empty workspace).
     """
 
-    def __init__(self, scene, link, frames: dict, truth: dict, estimates: dict):
-        self.scene, self.link = scene, link
+    def __init__(self, scene, link, frames: dict, truth: dict, estimates: dict, reference):
+        self.scene, self.link, self.reference = scene, link, reference
         self.holds: list[tuple[int, object]] = []  # (mesh vertex, RobotHand holding it)
+        self.hanging: HangingCue | None = None  # while one hand holds the cloth: what hangs lowest, and where
         self._T_cam_world = invert_transform(scene.T_world_cam)
         self.frames, self.truth, self.estimates = frames, truth, estimates
         self.kept: dict[str, tuple] = {}
@@ -77,9 +89,15 @@ class _Tracking:
     def __call__(self) -> None:
         frame = self.scene.render()
         if self.holds:  # what the robot holds and where, from its own kinematics
-            points = transform_points(self._T_cam_world, np.stack([hand.gripper.position for _, hand in self.holds]))
-            frame = dataclasses.replace(frame, held_vertices=np.array([v for v, _ in self.holds], np.int32),
-                                        held_points_m=points)
+            ids = [v for v, _ in self.holds]
+            points = list(transform_points(self._T_cam_world, np.stack([hand.gripper.position for _, hand in self.holds])))
+            lowest = None
+            if len(self.holds) == 1 and self.hanging is not None:
+                lowest = self.hanging.update(seen_cloth_points(frame, self.reference), points[0])
+            if lowest is not None and lowest[0] not in ids:
+                ids.append(lowest[0])
+                points.append(lowest[1])
+            frame = dataclasses.replace(frame, held_vertices=np.array(ids, np.int32), held_points_m=np.stack(points))
         self.truth[frame.seq] = self.scene.cloth_vertices_cam()
         estimate = self.estimates[frame.seq] = self.link.estimate_of(frame)
         self.phases[frame.seq] = self.phase
@@ -120,14 +138,6 @@ def _lift_errors(estimates: dict, truth: dict, faces: np.ndarray, seqs: list[int
     return {"mean": round(summary["mean_mm"], 2), "p95": round(summary["p95_mm"], 2)}
 
 
-def _cloth_seen(frame, reference) -> np.ndarray:
-    """(H, W) bool: the cloth against the empty workspace, less the robot's own hands and arms."""
-    mask = mask_from_reference(frame, reference)
-    if frame.occluder_mask is not None:
-        mask &= ~frame.occluder_mask.astype(bool)
-    return mask
-
-
 def no_adjacent_corner(planned_on: MeshEstimate | None) -> str:
     """The failure of a trial whose planner found no corner adjacent to the held one, saying
     whether the estimate it planned on (None: not among the trial's) was flagged lost (the
@@ -150,6 +160,11 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
         best = stretchable_corner(reply.candidates, estimate.canonical, held_vertex)
         if best is None:
             return None, None, -1, {"reason": no_adjacent_corner(tracking.estimates.get(reply.estimate_seq))}
+        if best.visible < MIN_CORNER_VISIBLE:  # nothing seen confirms the estimate's corner
+            seen = ", ".join(f"{c.visible:.2f}" for c in reply.candidates)
+            return None, None, -1, {"reason": f"the adjacent corners were not seen (visibility {seen} < "
+                                              f"{MIN_CORNER_VISIBLE:g}): not grasped blind",
+                                    "visible": round(best.visible, 3), "n_candidates": len(reply.candidates)}
         distance = float(np.linalg.norm(estimate.canonical[best.plan.vertex_id] - estimate.canonical[held_vertex]))
         return best.plan, distance, int(best.plan.vertex_id), {
             "side": best.side, "visible": round(best.visible, 3),
@@ -159,7 +174,7 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
     if config.regrasp == "lowest":
         from grasping import lowest_point_grasp
 
-        points = cloth_points(frame, _cloth_seen(frame, reference), reference)
+        points = seen_cloth_points(frame, reference)
         if len(points) < 3:
             return None, None, -1, {"reason": "no cloth seen below the gripper"}
         try:
@@ -170,8 +185,8 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
         k = int(np.argmin(np.linalg.norm(estimate.vertices - plan.position, axis=1)))
         return plan, float(np.linalg.norm(estimate.canonical[k] - estimate.canonical[held_vertex])), k, {}
     # redetect: a fresh mesh on the hanging cloth, the planner's best corner away from the first gripper
-    tracking.holds = []  # the held vertex belongs to the old mesh
-    status = link.control.request(InitialiseRequest(request_id=frame.seq, mask=_cloth_seen(frame, reference),
+    tracking.holds, tracking.hanging = [], None  # both belong to the old mesh
+    status = link.control.request(InitialiseRequest(request_id=frame.seq, mask=cloth_seen(frame, reference),
                                                     background=reference))
     if not isinstance(status, StatusReply) or status.state != "initialising":
         raise RuntimeError(f"perception service did not accept the re-detection ({status})")
@@ -214,19 +229,19 @@ def run_unfold(scene, link, config, record: dict, observe) -> None:
         record["failure"] = f"no corner grasp found on estimate {planned_on}"
         return
     held_vertex = _held_vertex(plan, reply, estimates[planned_on])
-    tracking = _Tracking(scene, link, {"last": first_frame}, truth, estimates)
+    tracking = _Tracking(scene, link, {"last": first_frame}, truth, estimates, reference)
     tracking.keep("first plan")
     tracking.plans["first plan"] = plan
     try:
-        _unfold(scene, link, config, record, tracking, plan, held_vertex, estimates[planned_on].canonical, reference)
+        _unfold(scene, link, config, record, tracking, plan, held_vertex, estimates[planned_on], reference)
     finally:
         if config.pictures_dir is not None and tracking.kept:
             record["picture"] = _pictures(scene, tracking, record, config)
 
 
 def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspPlan, held_vertex: int,
-            canonical: np.ndarray, reference) -> None:
-    """``run_unfold`` from the first grasp on; ``canonical`` (N, 3) is the mesh planned on's."""
+            planned_on: MeshEstimate, reference) -> None:
+    """``run_unfold`` from the first grasp on; ``planned_on`` is the estimate the first grasp was planned on."""
     execution, motion = config.execution, config.unfold
     estimates = tracking.estimates
 
@@ -247,11 +262,13 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
         return
     scene.release_holder()
     tracking.holds = [(held_vertex, hand1)]
+    tracking.hanging = HangingCue(planned_on.canonical, planned_on.faces, held_vertex, scene.T_world_cam,
+                                  support_height_m=top)
 
     # lift, tracked
     tracking.phase = "lift"
     lift_from = tracking.last_seq + 1
-    target = lift_target(fingertip, canonical, held_vertex, top, motion)
+    target = lift_target(fingertip, planned_on.canonical, held_vertex, top, motion)
     move_grippers(scene, [(hand1.gripper, target, None)],
                   float(np.linalg.norm(target - hand1.gripper.position)) / motion.lift_speed_m_s, tracking)
     tracking.keep("lifted")

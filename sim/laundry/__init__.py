@@ -55,7 +55,7 @@ change the scene (independent random streams, as ``sim.scenes``).
 from sim.laundry.controller import TURNS_RAD, View, best_candidate, default_controller, lowest_point_when_held
 from sim.laundry.judge import TOLERANCE_M, Judgement, judge
 from sim.laundry.scene import LaundryScene
-from sim.laundry.segment import cloth_points, mask_from_reference
+from sim.laundry.segment import cloth_points, cloth_seen, mask_from_reference, seen_cloth_points
 from sim.laundry.spec import (
     CLOTH_KINDS,
     CLOTH_SPACING_M,
@@ -81,6 +81,7 @@ __all__ = [
     "View",
     "best_candidate",
     "cloth_points",
+    "cloth_seen",
     "default_controller",
     "distance_to_segments",
     "judge",
@@ -89,5 +90,6 @@ __all__ = [
     "mask_from_reference",
     "nearest_corner",
     "rectangle_corners_uv",
+    "seen_cloth_points",
     "tshirt_corners_uv",
 ]

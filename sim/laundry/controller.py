@@ -91,17 +91,27 @@ def edge_straightness(corner: AdjacentCorner, canonical: np.ndarray, held_vertex
     return chord / corner.material_distance_m if corner.material_distance_m > 0 else 0.0
 
 
+#: The least part of the material around a corner that the camera must have seen
+#: (``AdjacentCorner.visible``) for the robot to send a gripper there. Below it nothing in the
+#: frame confirms the estimate's corner: on three runs of 50 held-out unfold trials, 51 of the
+#: 105 second grasps went to a corner seen less than this, one of them succeeded, and 39 of
+#: the 41 second grippers that closed on nothing had been sent to such a corner.
+MIN_CORNER_VISIBLE = 0.25
+
+
 def stretchable_corner(candidates, canonical: np.ndarray, held_vertex: int) -> AdjacentCorner | None:
     """The adjacent corner to grasp second, of the planner's ``AdjacentCorner`` candidates
-    (best first): a reachable one first, and among those one joined to the held point by a
+    (best first): a reachable one first, among those one joined to the held point by a
     straight edge (``MIN_EDGE_STRAIGHTNESS``), which pulling the two corners apart stretches
-    (a T-shirt's hem, not the side seam that bends under the sleeve); the planner's order
-    decides among equals. None when there are no candidates.
+    (a T-shirt's hem, not the side seam that bends under the sleeve), and among those one the
+    camera saw (``MIN_CORNER_VISIBLE``); the planner's order decides among equals. None when
+    there are no candidates. The caller still checks what it got: the best may be unseen.
     """
     if not candidates:
         return None
     return min(candidates, key=lambda c: (not c.reachable,
-                                          edge_straightness(c, canonical, held_vertex) < MIN_EDGE_STRAIGHTNESS))
+                                          edge_straightness(c, canonical, held_vertex) < MIN_EDGE_STRAIGHTNESS,
+                                          c.visible < MIN_CORNER_VISIBLE))
 
 
 def default_controller(kind: str) -> Callable[[GraspPlanReply, object, View], GraspPlan | None]:

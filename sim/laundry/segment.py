@@ -65,3 +65,18 @@ def cloth_points(frame: RGBDFrame, mask: np.ndarray, reference: RGBDFrame, depth
         nearer = np.isfinite(d) & (d > 0) & np.isfinite(r) & (r > 0) & (d < r - depth_tol_m)
     rows, cols = np.nonzero(mask & nearer)
     return backproject(np.column_stack([cols, rows]), d[rows, cols], frame.camera.K)
+
+
+def cloth_seen(frame: RGBDFrame, reference: RGBDFrame) -> np.ndarray:
+    """(H, W) bool: the cloth against the empty workspace, less the robot's own hands and arms
+    (the frame's known occluder, if it has one)."""
+    mask = mask_from_reference(frame, reference)
+    if frame.occluder_mask is not None:
+        mask &= ~frame.occluder_mask.astype(bool)
+    return mask
+
+
+def seen_cloth_points(frame: RGBDFrame, reference: RGBDFrame) -> np.ndarray:
+    """(N, 3) float64 metres, camera frame: the measured points of the cloth off the table,
+    less what the robot's hands cover (``cloth_points`` of ``cloth_seen``)."""
+    return cloth_points(frame, cloth_seen(frame, reference), reference)

@@ -12,7 +12,7 @@ from launch_scripts.trial_runner.unfold import no_adjacent_corner
 from perception.geometry import look_at
 from sim.grasp_execution import move_grippers
 from sim.laundry import LaundryScene, laundry_spec
-from sim.laundry.controller import MIN_EDGE_STRAIGHTNESS, edge_straightness, stretchable_corner
+from sim.laundry.controller import MIN_CORNER_VISIBLE, MIN_EDGE_STRAIGHTNESS, edge_straightness, stretchable_corner
 from sim.laundry.judge import MIN_STRETCH, TOLERANCE_M, judge_unfold
 from sim.laundry.truth import rectangle_corners_uv, share_an_edge
 from sim.laundry.unfold import UnfoldConfig, arm_for, lift_target, shoulders, stretch_targets
@@ -88,6 +88,33 @@ def test_a_reachable_corner_comes_before_a_straight_edge():
     assert stretchable_corner((first, second), est.canonical, held) is first
     out_of_reach = dataclasses.replace(first, reachable=False)
     assert stretchable_corner((out_of_reach, second), est.canonical, held) is second
+
+
+def test_a_corner_the_camera_did_not_see_is_never_grasped_blind():
+    from types import SimpleNamespace
+
+    from launch_scripts.trial_runner.unfold import _second_plan
+
+    est = towel_estimate()
+    held = int(GraspPlanner().corners(est)[0])
+    first, second = adjacent_corners(est, held).candidates
+    assert first.visible == 1.0 and second.visible == 1.0  # no flags and no frame: taken as seen
+    unseen = dataclasses.replace(first, visible=0.0)
+    assert stretchable_corner((unseen, second), est.canonical, held) is second  # the seen one, though ranked second
+
+    def second_plan(candidates):
+        link = SimpleNamespace(ask=lambda request, seq, republish: (SimpleNamespace(candidates=candidates,
+                                                                                    estimate_seq=7), 1.0))
+        tracking = SimpleNamespace(frames={"last": SimpleNamespace(seq=7)}, estimates={7: est})
+        return _second_plan(None, link, SimpleNamespace(regrasp="adjacent"), tracking, None, held, None)
+
+    plan, _, vertex, details = second_plan((unseen, second))
+    assert plan is second.plan and vertex == second.plan.vertex_id and details["visible"] == 1.0
+    barely = dataclasses.replace(second, visible=MIN_CORNER_VISIBLE / 2)
+    plan, distance, vertex, details = second_plan((unseen, barely))
+    assert plan is None and distance is None and vertex == -1
+    assert details["reason"] == (f"the adjacent corners were not seen (visibility 0.00, {MIN_CORNER_VISIBLE / 2:.2f} "
+                                 f"< {MIN_CORNER_VISIBLE:g}): not grasped blind")
 
 
 def test_lift_target_leaves_the_cloth_hanging_clear():
