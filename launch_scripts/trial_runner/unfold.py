@@ -161,8 +161,7 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
         if best is None:
             return None, None, -1, {"reason": no_adjacent_corner(tracking.estimates.get(reply.estimate_seq))}
         if best.visible < MIN_CORNER_VISIBLE:  # nothing seen confirms the estimate's corner
-            seen = ", ".join(f"{c.visible:.2f}" for c in reply.candidates)
-            return None, None, -1, {"reason": f"the adjacent corners were not seen (visibility {seen} < "
+            return None, None, -1, {"reason": f"adjacent corner not seen (visibility {best.visible:.2f} < "
                                               f"{MIN_CORNER_VISIBLE:g}): not grasped blind",
                                     "visible": round(best.visible, 3), "n_candidates": len(reply.candidates)}
         distance = float(np.linalg.norm(estimate.canonical[best.plan.vertex_id] - estimate.canonical[held_vertex]))
