@@ -11,9 +11,9 @@ hangs at rest from one gripper (``HangingCue``; ``RGBDFrame.held_vertices`` and
 ``held_points_m``, beside the gripper's own), and the tracker keeps that vertex there.
 
 Why: depth pulls a mesh vertex only towards the measured surface, so on a cloth without
-print the tracked material can slide along the hanging surface unseen; a lifted towel's
-opposite corner was estimated 20-30 cm too high on some recorded lifts. One point pinned
-at each end of the hanging cloth takes away most of that slide.
+print the tracked material can slide along the hanging surface unseen; on 6 of 13 recorded
+lifts the tracker put the farthest material point 12-29 cm too high. One point held at each
+end of the hanging cloth takes away part of that slide (docs/results.md, "Unfolding").
 
 Data form: the observed points of the cloth, (M, 3) float64 metres in the camera's optical
 frame (depth pixels of the cloth's mask, back-projected), the gripper's position (3,) in the
@@ -22,6 +22,8 @@ and faces (F, 3).
 """
 
 from __future__ import annotations
+
+from collections import deque
 
 import numpy as np
 import scipy.sparse as sp
@@ -112,8 +114,8 @@ class HangingCue:
       above it: this gripper lifted it off. A cloth that came into the gripper's hold
       otherwise (a holder above let go of it once the robot held its lowest corner) falls
       over first, and the tracked mesh followed that fall too loosely for one pulled vertex
-      to set right (it made the error at the second plan worse on most such unfold trials);
-      with ``support_height_m`` None, any cloth counts;
+      to set right (without this rule, half of such unfold trials tracked two to four times
+      worse); with ``support_height_m`` None, any cloth counts;
     - it lies at least ``min_drop_fraction`` of the farthest material point's distance
       (along the cloth) below the gripper: a cloth held near its lowest point does not hang
       from it;
@@ -142,10 +144,11 @@ class HangingCue:
             raise ValueError(f"Expected still_frames an integer >= 1, got {still_frames}")
         self.still_frames = int(still_frames)
         self.still_m = check_positive("still_m", still_m)
-        self._offsets: list[np.ndarray] = []
+        self._offsets: deque[np.ndarray] = deque(maxlen=self.still_frames)  # the tip relative to the gripper
 
     def update(self, points_cam, gripper_cam) -> tuple[int, np.ndarray] | None:
         """This frame's cue: (vertex id, (3,) float64 point in the camera frame), or None.
+        Call it on every frame while the gripper holds the cloth: rest is judged over frames.
 
         points_cam : (M, 3) float metres, camera frame: the observed points of the cloth
         gripper_cam : (3,) float metres, camera frame: where the gripper holds it
@@ -155,7 +158,7 @@ class HangingCue:
         if tip is None or not self._hangs_clear(tip, grip):
             self._offsets.clear()
             return None
-        self._offsets = [*self._offsets[-(self.still_frames - 1):], tip - grip] if self.still_frames > 1 else [tip - grip]
+        self._offsets.append(tip - grip)
         if len(self._offsets) < self.still_frames:
             return None
         offsets = np.stack(self._offsets)
