@@ -79,6 +79,7 @@ class _Tracking:
         self.scene, self.link, self.reference = scene, link, reference
         self.holds: list[tuple[int, object]] = []  # (mesh vertex, RobotHand holding it)
         self.hanging: HangingCue | None = None  # while one hand holds the cloth: what hangs lowest, and where
+        self.lowest_sent = 0  # frames that carried the hanging cloth's lowest point
         self._T_cam_world = invert_transform(scene.T_world_cam)
         self.frames, self.truth, self.estimates = frames, truth, estimates
         self.kept: dict[str, tuple] = {}
@@ -97,6 +98,7 @@ class _Tracking:
             if lowest is not None and lowest[0] not in ids:
                 ids.append(lowest[0])
                 points.append(lowest[1])
+                self.lowest_sent += 1
             frame = dataclasses.replace(frame, held_vertices=np.array(ids, np.int32), held_points_m=np.stack(points))
         self.truth[frame.seq] = self.scene.cloth_vertices_cam()
         estimate = self.estimates[frame.seq] = self.link.estimate_of(frame)
@@ -345,14 +347,16 @@ def _grasp_record(closing, scene) -> dict:
 
 
 def _tracking_record(tracking: _Tracking, scene, lift_seqs: list[int], plan_seq: int, errors: bool = True) -> dict:
-    """Frames tracked (by phase, and how many flagged lost) and, with ``errors``, the tracking
-    error during the lift and at the second plan and the confidence then."""
+    """Frames tracked (by phase, how many flagged lost, how many carried the hanging cloth's
+    lowest point) and, with ``errors``, the tracking error during the lift and at the second
+    plan and the confidence then."""
     estimates = tracking.estimates
     by_phase: dict[str, int] = {}
     for phase in tracking.phases.values():
         by_phase[phase] = by_phase.get(phase, 0) + 1
     counts = {"frames_tracked": len(tracking.phases), "frames_by_phase": by_phase,
-              "frames_lost": sum(bool(estimates[s].lost) for s in tracking.phases)}
+              "frames_lost": sum(bool(estimates[s].lost) for s in tracking.phases),
+              "frames_with_lowest_point": tracking.lowest_sent}
     if not errors:
         return counts
     return {"lift_error_mm": _lift_errors(estimates, tracking.truth, scene.faces, lift_seqs),

@@ -159,6 +159,7 @@ def test_the_unfold_robot_sends_the_lowest_point_with_its_grip_only_while_one_ha
     np.testing.assert_allclose(shown[-1], [0.0, 0.0, 1.0])  # the gripper, in the camera frame
     np.testing.assert_array_equal(sent[-1].held_vertices, [3, 7])
     np.testing.assert_allclose(sent[-1].held_points_m, [[0.0, 0.0, 1.0], [0.0, 0.5, 1.2]])
+    assert tracking.lowest_sent == 1
     tracking.hanging = cue(None)  # not hanging at rest yet
     tracking()
     np.testing.assert_array_equal(sent[-1].held_vertices, [3])
@@ -167,3 +168,4 @@ def test_the_unfold_robot_sends_the_lowest_point_with_its_grip_only_while_one_ha
     tracking()
     np.testing.assert_array_equal(sent[-1].held_vertices, [3, 7])
     assert len(sent[-1].held_points_m) == 2 and len(shown) == 2  # not asked with two hands on the cloth
+    assert tracking.lowest_sent == 1
