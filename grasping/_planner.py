@@ -19,7 +19,7 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.sparse import coo_matrix, csr_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
@@ -36,7 +36,7 @@ from perception.geometry import (
     check_positive,
     check_transform,
     check_vector,
-    directed_edges,
+    edge_length_graph,
     frames_from_z_and_x,
     project,
     quaternion_xyzw_from_matrix,
@@ -260,13 +260,7 @@ def _canonical_key(estimate: MeshEstimate) -> bytes:
 def _build_model(estimate: MeshEstimate, config: GraspPlannerConfig, with_outline: bool) -> _CanonicalModel:
     """Precompute what depends on the canonical mesh only; the outline only if asked."""
     faces = estimate.faces.astype(np.int64)
-    n = len(estimate.canonical)
-    edges = directed_edges(faces)
-    lengths = np.linalg.norm(estimate.canonical[edges[:, 0]] - estimate.canonical[edges[:, 1]], axis=1)
-    # COO -> CSR sums repeated entries, and a directed edge repeats where two faces
-    # disagree in winding; keep each once so its weight stays its length.
-    _, first = np.unique(edges[:, 0] * n + edges[:, 1], return_index=True)
-    graph = coo_matrix((lengths[first], (edges[first, 0], edges[first, 1])), shape=(n, n)).tocsr()
+    graph = edge_length_graph(estimate.canonical, faces)
     outline = None
     if with_outline and estimate.boundary.size:
         outline = build_outline(

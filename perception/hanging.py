@@ -26,11 +26,10 @@ from __future__ import annotations
 from collections import deque
 
 import numpy as np
-import scipy.sparse as sp
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
-from perception.geometry import check_points, check_positive, check_transform, check_vector, unique_edges
+from perception.geometry import check_points, check_positive, check_transform, check_vector, edge_length_graph
 
 
 def lowest_point(points_cam, up_cam, min_neighbours: int = 5, support_radius_m: float = 0.01) -> np.ndarray:
@@ -69,10 +68,7 @@ def farthest_vertex(canonical, faces, held_vertex: int) -> tuple[int, float]:
     if isinstance(held_vertex, (bool, np.bool_)) or not isinstance(held_vertex, (int, np.integer)) \
             or not 0 <= held_vertex < n:
         raise ValueError(f"Expected held_vertex a vertex id in [0, {n}), got {held_vertex!r}")
-    e = unique_edges(f.astype(np.int64))
-    lengths = np.linalg.norm(rest[e[:, 0]] - rest[e[:, 1]], axis=1)
-    graph = sp.coo_matrix((lengths, (e[:, 0], e[:, 1])), shape=(n, n)).tocsr()
-    distance = dijkstra(graph, directed=False, indices=int(held_vertex))
+    distance = dijkstra(edge_length_graph(rest, f), directed=False, indices=int(held_vertex))
     distance[~np.isfinite(distance)] = -1.0  # another piece of the mesh: not carried by this hand
     far = int(np.argmax(distance))
     if distance[far] <= 0:

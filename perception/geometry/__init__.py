@@ -14,7 +14,7 @@ it imports nothing from ``perception`` outside this package, nor ``sim``, ``gras
   ``quaternion_xyzw_from_matrix``
 - checks: ``check_points``, ``check_ids``, ``check_vector``, ``check_positive``,
   ``check_transform``
-- topology: ``directed_edges``, ``unique_edges``, ``boundary_half_edges``,
+- topology: ``directed_edges``, ``unique_edges``, ``edge_length_graph``, ``boundary_half_edges``,
   ``boundary_edges``, ``boundary_vertices``, ``face_normals``, ``face_areas``,
   ``vertex_normals``
 """
@@ -40,6 +40,7 @@ from perception.geometry._topology import (
     boundary_half_edges,
     boundary_vertices,
     directed_edges,
+    edge_length_graph,
     face_areas,
     face_normals,
     unique_edges,
@@ -68,6 +69,7 @@ __all__ = [
     "check_vector",
     "crop_intrinsics",
     "directed_edges",
+    "edge_length_graph",
     "face_areas",
     "face_normals",
     "frame_along",

@@ -9,6 +9,7 @@ smaller id first.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
 
 def directed_edges(faces: np.ndarray) -> np.ndarray:
@@ -20,6 +21,16 @@ def directed_edges(faces: np.ndarray) -> np.ndarray:
 def unique_edges(faces: np.ndarray) -> np.ndarray:
     """(E, 2) int64 unique undirected edges of the faces (F, 3), smaller id first, sorted."""
     return np.unique(np.sort(directed_edges(faces), axis=1), axis=0)
+
+
+def edge_length_graph(vertices: np.ndarray, faces: np.ndarray) -> sp.csr_matrix:
+    """(N, N) sparse float64: each unique edge of the faces (F, 3) once, weighted by its
+    length in ``vertices`` (N, 3); for shortest paths along the mesh (``scipy.sparse.csgraph``
+    with ``directed=False``)."""
+    v = np.asarray(vertices, dtype=np.float64)
+    e = unique_edges(faces)
+    lengths = np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1)
+    return sp.coo_matrix((lengths, (e[:, 0], e[:, 1])), shape=(len(v), len(v))).tocsr()
 
 
 def boundary_half_edges(faces: np.ndarray) -> np.ndarray:
