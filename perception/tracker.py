@@ -73,6 +73,7 @@ from perception.raster import faces_mask
 from perception.registration import GlobalRegistration
 from perception.segmentation import SegmentationConfig, find_by_colour, find_object, segment_tracked, valid_depth
 from perception.solver import METHODS, SemiImplicitSolver
+from perception.tether import Tethers
 from perception.visibility import NO_DEPTH, OCCLUDED, VISIBLE, classify_vertices, face_states
 
 log = logging.getLogger(__name__)
@@ -155,6 +156,10 @@ class TrackerConfig:
         energy, whose smoothness lets a mesh shrink onto the part of the object still seen)
     lambda_h : weight of the hold term: vertices the robot holds (``RGBDFrame.held_vertices``)
         stay at its grippers (``RGBDFrame.held_points_m``)
+    tether : while the robot holds the object, no vertex may be farther from a held point
+        than (1 + ``tether_slack``) times its distance to it along the mesh as laid on the
+        object (``perception.tether``: cloth hardly stretches); applied to the prediction
+        and to the result of each frame
     coarse_motion : before each frame's minimisation, also consider the last mesh unmoved and
         moved by the image translation measured around it (large motions, dropped frames)
     self_occlusion : a vertex that another part of the mesh hides (a fold) is occluded too,
@@ -202,6 +207,8 @@ class TrackerConfig:
     lambda_m: float = 1.0
     lambda_l: float = 5.0
     lambda_h: float = 100.0
+    tether: bool = True
+    tether_slack: float = 0.05
     coarse_motion: bool = True
     self_occlusion: bool = True
     lambda_o: float = 0.0
@@ -221,7 +228,7 @@ class TrackerConfig:
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a positive number, got {v!r}")
         for name in ("spacing_m", "lambda_c", "lambda_d", "lambda_b", "lambda_m", "lambda_l", "lambda_h", "lambda_o",
-                     "velocity_prediction",
+                     "tether_slack", "velocity_prediction",
                      "min_predicted_decrease"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
@@ -293,6 +300,7 @@ class MeshTracker:
         self._good_V = None  # (N, 3) the last estimate that was not lost
         self._rest_lengths = None  # (E,) edge lengths, metres, of the mesh as laid on the object
         self._stretch: StretchTerm | None = None  # the stretch term of those lengths
+        self._tethers: Tethers | None = None  # how far each vertex may be from a held one
         self.lost_streak = 0  # consecutive lost frames
         self.reacquisitions = 0  # times the object was found again after being lost
         self.last_assessment: Assessment | None = None
@@ -429,6 +437,7 @@ class MeshTracker:
         self._good_V = V
         self._rest_lengths = np.linalg.norm(V[self._edges[:, 0]] - V[self._edges[:, 1]], axis=1)
         self._stretch = StretchTerm(self._edges, self._rest_lengths, n_vertices=len(V))
+        self._tethers = Tethers(self._edges, self._rest_lengths, len(V), cfg.tether_slack) if cfg.tether else None
         assessment = self._assess(V, frame, visible, obs.mask)
         log.info("initialised mesh: %d vertices, %d faces, %d boundary, %d features", mesh.n_vertices,
                  len(mesh.faces), len(mesh.boundary), self._corr.n_model if self._corr else 0)
@@ -720,10 +729,17 @@ class MeshTracker:
         look = self._memory.agreement(small, uv_prev[seen], uv[seen])
         return float(on_surface.mean() * (0.5 + 0.5 * max(look, 0.0)))
 
+    def _tethered(self, V: np.ndarray, frame: RGBDFrame) -> np.ndarray:
+        """``V`` (N, 3) within reach of the points ``frame`` says the robot holds (unchanged if none)."""
+        if self._tethers is None or frame.held_vertices is None or not frame.held_vertices.size:
+            return V
+        return self._tethers.apply(V, frame.held_vertices, frame.held_points_m)
+
     def _solve_frame(self, frame, V_pred, pred_mask, grey, prepared, t0) -> MeshEstimate:
         cfg = self.config
         K = frame.camera.K
         faces = self.mesh.faces
+        V_pred = self._tethered(V_pred, frame)
         z = V_pred[:, 2]
         state = self._states(V_pred, frame)
         behind = np.any(state[faces] == OCCLUDED, axis=1)
@@ -762,6 +778,7 @@ class MeshTracker:
                                         min_predicted_decrease=cfg.min_predicted_decrease)
             V, energies = res.vertices, res.energies
             iterations += res.iterations
+        V = self._tethered(V, frame)
         if self._corr is not None:
             self._corr.update(obs.grey, self._feature_mask(mask), V, faces, K)
         self._V_prev, self._V = self._V, V

@@ -1,0 +1,66 @@
+"""A held cloth's reach: no material point farther from a held one than along the cloth.
+
+Cloth hardly stretches, so a point of it can never be farther (in space) from a point the
+robot holds than the shortest path between the two along the cloth. The tracker's data
+terms do not know this: during a lift most of the cloth turns away from the camera, and
+the vertices without data are carried by smoothness and a motion prior, which let them
+trail far below or beside the gripper. Cloth simulators keep such long-range limits as
+"tethers" (long-range attachments); here they are a projection: each vertex beyond its
+limit from a held point is moved straight towards that point onto the limit.
+
+Data form: vertices (N, 3) float64 metres, any one frame (the tracker's: camera);
+held ids (H,) int into them and the held points (H, 3) float64 in the same frame; the
+mesh as its edges (E, 2) int and their rest lengths (E,) float metres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+
+class Tethers:
+    """Shortest distances along a mesh from the vertices it is held by, and the projection.
+
+    edges : (E, 2) int vertex ids; rest_lengths_m : (E,) float, their lengths at rest
+    slack : a vertex may reach (1 + slack) times its distance along the mesh: the mesh's
+        own stretch and its coarse paths around corners (a path along edges is a little
+        longer than the straight line on the cloth, never shorter)
+    The distances from each held vertex are computed once and kept (a robot holds the same
+    few points for many frames).
+    """
+
+    def __init__(self, edges: np.ndarray, rest_lengths_m: np.ndarray, n_vertices: int, slack: float):
+        edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
+        lengths = np.asarray(rest_lengths_m, dtype=np.float64).reshape(-1)
+        if len(edges) != len(lengths):
+            raise ValueError(f"Tethers: {len(edges)} edges but {len(lengths)} rest lengths")
+        if not (np.isfinite(slack) and slack >= 0):
+            raise ValueError(f"Tethers.slack: expected a non-negative number, got {slack!r}")
+        # dijkstra reads an explicit 0 as "no edge": a zero-length edge still joins its ends
+        weights = np.maximum(lengths, 1e-9)
+        self._graph = coo_matrix((weights, (edges[:, 0], edges[:, 1])), shape=(n_vertices, n_vertices)).tocsr()
+        self.slack = float(slack)
+        self._reach: dict[int, np.ndarray] = {}
+
+    def reach(self, vertex: int) -> np.ndarray:
+        """(N,) float64 metres: how far each vertex may be from ``vertex`` (inf: not joined to it)."""
+        vertex = int(vertex)
+        if vertex not in self._reach:
+            along = dijkstra(self._graph, directed=False, indices=vertex)
+            self._reach[vertex] = (1.0 + self.slack) * along
+        return self._reach[vertex]
+
+    def apply(self, vertices: np.ndarray, held_ids: np.ndarray, held_points_m: np.ndarray) -> np.ndarray:
+        """(N, 3) float64: ``vertices`` with every vertex beyond its reach from a held point
+        moved towards that point onto the reach, one held point after the other."""
+        V = np.array(vertices, dtype=np.float64, copy=True)
+        for vertex, point in zip(np.asarray(held_ids).reshape(-1), np.asarray(held_points_m, np.float64).reshape(-1, 3)):
+            limit = self.reach(vertex)
+            offset = V - point
+            distance = np.linalg.norm(offset, axis=1)
+            over = distance > limit
+            if over.any():
+                V[over] = point + offset[over] * (limit[over] / distance[over])[:, None]
+        return V
