@@ -159,7 +159,10 @@ class TrackerConfig:
     tether : while the robot holds the object, no vertex may be farther from a held point
         than (1 + ``tether_slack``) times its distance to it along the mesh as laid on the
         object (``perception.tether``: cloth hardly stretches); applied to the prediction
-        and to the result of each frame
+        and to the result of each frame (independently of ``lambda_h``)
+    tether_slack : how much farther than along the mesh a vertex may be from a held point,
+        as a fraction (the mesh's own stretch; a path along edges is a little longer than on
+        the cloth)
     coarse_motion : before each frame's minimisation, also consider the last mesh unmoved and
         moved by the image translation measured around it (large motions, dropped frames)
     self_occlusion : a vertex that another part of the mesh hides (a fold) is occluded too,
