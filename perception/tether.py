@@ -8,22 +8,24 @@ trail far below or beside the gripper. Cloth simulators keep such long-range lim
 "tethers" (long-range attachments); here they are a projection: each vertex beyond its
 limit from a held point is moved straight towards that point onto the limit.
 
-Data form: vertices (N, 3) float64 metres, any one frame (the tracker's: camera);
-held ids (H,) int into them and the held points (H, 3) float64 in the same frame; the
-mesh as its edges (E, 2) int and their rest lengths (E,) float metres.
+Data form: vertices (N, 3) float64 metres, any one frame (the tracker's: camera); held ids
+(H,) int into them and the held points (H, 3) float64 in the same frame; the mesh as it was
+laid on the object (rest vertices (N, 3) metres and faces (F, 3) int).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import dijkstra
+
+from perception.geometry import edge_length_graph
 
 
 class Tethers:
     """Shortest distances along a mesh from the vertices it is held by, and the projection.
 
-    edges : (E, 2) int vertex ids; rest_lengths_m : (E,) float, their lengths at rest
+    rest_vertices : (N, 3) float metres, the mesh as laid on the object (its edges' lengths
+        are the cloth's); faces : (F, 3) int
     slack : a vertex may reach (1 + slack) times its distance along the mesh: the mesh's
         own stretch and its coarse paths around corners (a path along edges is a little
         longer than the straight line on the cloth, never shorter)
@@ -31,16 +33,10 @@ class Tethers:
     few points for many frames).
     """
 
-    def __init__(self, edges: np.ndarray, rest_lengths_m: np.ndarray, n_vertices: int, slack: float):
-        edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
-        lengths = np.asarray(rest_lengths_m, dtype=np.float64).reshape(-1)
-        if len(edges) != len(lengths):
-            raise ValueError(f"Tethers: {len(edges)} edges but {len(lengths)} rest lengths")
+    def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray, slack: float):
         if not (np.isfinite(slack) and slack >= 0):
             raise ValueError(f"Tethers.slack: expected a non-negative number, got {slack!r}")
-        # dijkstra reads an explicit 0 as "no edge": a zero-length edge still joins its ends
-        weights = np.maximum(lengths, 1e-9)
-        self._graph = coo_matrix((weights, (edges[:, 0], edges[:, 1])), shape=(n_vertices, n_vertices)).tocsr()
+        self._graph = edge_length_graph(rest_vertices, faces)
         self.slack = float(slack)
         self._reach: dict[int, np.ndarray] = {}
 

@@ -440,7 +440,7 @@ class MeshTracker:
         self._good_V = V
         self._rest_lengths = np.linalg.norm(V[self._edges[:, 0]] - V[self._edges[:, 1]], axis=1)
         self._stretch = StretchTerm(self._edges, self._rest_lengths, n_vertices=len(V))
-        self._tethers = Tethers(self._edges, self._rest_lengths, len(V), cfg.tether_slack) if cfg.tether else None
+        self._tethers = Tethers(V, mesh.faces, cfg.tether_slack) if cfg.tether else None
         assessment = self._assess(V, frame, visible, obs.mask)
         log.info("initialised mesh: %d vertices, %d faces, %d boundary, %d features", mesh.n_vertices,
                  len(mesh.faces), len(mesh.boundary), self._corr.n_model if self._corr else 0)

@@ -143,15 +143,15 @@ def test_no_vertex_outreaches_the_cloth_from_the_point_held(tex, tether):
     e0 = tracker.initialise(frame_of(rest, UV, FACES, tex, CAM, SIZE))
     corner = int(np.argmin(np.linalg.norm(e0.vertices - rest[0], axis=1)))
     outwards = rest[0] - rest.mean(axis=0)
-    lifted = rest + 0.3 * outwards / np.linalg.norm(outwards)
-    frame = frame_of(lifted, UV, FACES, tex, CAM, SIZE, seq=1)
-    u, v = np.rint(CAM.K[:2, :2] @ (lifted[0, :2] / lifted[0, 2]) + CAM.K[:2, 2]).astype(int)
+    pulled = rest + 0.3 * outwards / np.linalg.norm(outwards)
+    frame = frame_of(pulled, UV, FACES, tex, CAM, SIZE, seq=1)
+    u, v = np.rint(CAM.K[:2, :2] @ (pulled[0, :2] / pulled[0, 2]) + CAM.K[:2, 2]).astype(int)
     arm = np.ones((480, 640), bool)
     arm[max(0, v - 30):v + 30, max(0, u - 30):u + 30] = False
     frame = dataclasses.replace(frame, occluder_mask=arm, held_vertices=np.array([corner]),
-                                held_points_m=lifted[0][None])
+                                held_points_m=pulled[0][None])
     estimate = tracker.track(frame)
-    ratio = _reach_ratio(estimate.vertices, e0.canonical, e0.faces, corner, lifted[0])
+    ratio = _reach_ratio(estimate.vertices, e0.canonical, e0.faces, corner, pulled[0])
     ratio[corner] = 0.0
     if tether:  # the 5 % slack, and rest lengths a hair off the sheet's (noise where the mesh was laid)
         assert ratio.max() < 1.06, ratio.max()
