@@ -26,34 +26,32 @@ class Tethers:
 
     rest_vertices : (N, 3) float metres, the mesh as laid on the object (its edges' lengths
         are the cloth's); faces : (F, 3) int
-    slack : a vertex may reach (1 + slack) times its distance along the mesh: the mesh's
-        own stretch and its coarse paths around corners (a path along edges is a little
-        longer than the straight line on the cloth, never shorter)
     The distances from each held vertex are computed once and kept (a robot holds the same
     few points for many frames).
     """
 
-    def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray, slack: float):
-        if not (np.isfinite(slack) and slack >= 0):
-            raise ValueError(f"Tethers.slack: expected a non-negative number, got {slack!r}")
+    def __init__(self, rest_vertices: np.ndarray, faces: np.ndarray):
         self._graph = edge_length_graph(rest_vertices, faces)
-        self.slack = float(slack)
-        self._reach: dict[int, np.ndarray] = {}
+        self._along: dict[int, np.ndarray] = {}
 
-    def reach(self, vertex: int) -> np.ndarray:
-        """(N,) float64 metres: how far each vertex may be from ``vertex`` (inf: not joined to it)."""
+    def along(self, vertex: int) -> np.ndarray:
+        """(N,) float64 metres: each vertex's shortest distance to ``vertex`` along the mesh
+        (inf: not joined to it)."""
         vertex = int(vertex)
-        if vertex not in self._reach:
-            along = dijkstra(self._graph, directed=False, indices=vertex)
-            self._reach[vertex] = (1.0 + self.slack) * along
-        return self._reach[vertex]
+        if vertex not in self._along:
+            self._along[vertex] = dijkstra(self._graph, directed=False, indices=vertex)
+        return self._along[vertex]
 
-    def apply(self, vertices: np.ndarray, held_ids: np.ndarray, held_points_m: np.ndarray) -> np.ndarray:
-        """(N, 3) float64: ``vertices`` with every vertex beyond its reach from a held point
-        moved towards that point onto the reach, one held point after the other."""
+    def apply(self, vertices: np.ndarray, held_ids: np.ndarray, held_points_m: np.ndarray, slack: float) -> np.ndarray:
+        """(N, 3) float64: ``vertices`` with every vertex farther from a held point than
+        (1 + ``slack``) times its distance along the mesh (the mesh's own stretch, and its
+        paths along edges, a little longer than straight on the cloth) moved towards that
+        point onto that reach, one held point after the other."""
+        if not (np.isfinite(slack) and slack >= 0):
+            raise ValueError(f"Tethers.apply: slack must be a non-negative number, got {slack!r}")
         V = np.array(vertices, dtype=np.float64, copy=True)
         for vertex, point in zip(np.asarray(held_ids).reshape(-1), np.asarray(held_points_m, np.float64).reshape(-1, 3)):
-            limit = self.reach(vertex)
+            limit = (1.0 + slack) * self.along(vertex)
             offset = V - point
             distance = np.linalg.norm(offset, axis=1)
             over = distance > limit

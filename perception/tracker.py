@@ -303,7 +303,7 @@ class MeshTracker:
         self._good_V = None  # (N, 3) the last estimate that was not lost
         self._rest_lengths = None  # (E,) edge lengths, metres, of the mesh as laid on the object
         self._stretch: StretchTerm | None = None  # the stretch term of those lengths
-        self._tethers: Tethers | None = None  # how far each vertex may be from a held one
+        self._tethers: Tethers | None = None  # each vertex's distance along the mesh from a held one
         self.lost_streak = 0  # consecutive lost frames
         self.reacquisitions = 0  # times the object was found again after being lost
         self.last_assessment: Assessment | None = None
@@ -440,7 +440,7 @@ class MeshTracker:
         self._good_V = V
         self._rest_lengths = np.linalg.norm(V[self._edges[:, 0]] - V[self._edges[:, 1]], axis=1)
         self._stretch = StretchTerm(self._edges, self._rest_lengths, n_vertices=len(V))
-        self._tethers = Tethers(V, mesh.faces, cfg.tether_slack) if cfg.tether else None
+        self._tethers = Tethers(V, mesh.faces)
         assessment = self._assess(V, frame, visible, obs.mask)
         log.info("initialised mesh: %d vertices, %d faces, %d boundary, %d features", mesh.n_vertices,
                  len(mesh.faces), len(mesh.boundary), self._corr.n_model if self._corr else 0)
@@ -734,9 +734,9 @@ class MeshTracker:
 
     def _tethered(self, V: np.ndarray, frame: RGBDFrame) -> np.ndarray:
         """``V`` (N, 3) within reach of the points ``frame`` says the robot holds (unchanged if none)."""
-        if self._tethers is None or frame.held_vertices is None or not frame.held_vertices.size:
+        if not self.config.tether or frame.held_vertices is None or not frame.held_vertices.size:
             return V
-        return self._tethers.apply(V, frame.held_vertices, frame.held_points_m)
+        return self._tethers.apply(V, frame.held_vertices, frame.held_points_m, self.config.tether_slack)
 
     def _solve_frame(self, frame, V_pred, pred_mask, grey, prepared, t0) -> MeshEstimate:
         cfg = self.config
