@@ -217,18 +217,29 @@ class _Link:
             raise RuntimeError(f"perception service runs other tracker parameters than the trial's: {wrong}")
 
     def estimate_of(self, frame) -> MeshEstimate:
-        """Publish ``frame`` until its estimate arrives (back-off 0.5 s doubling to 4 s); bounded."""
+        """Publish ``frame`` and wait for its estimate; bounded by ``frame_timeout_s``.
+
+        The frame is published again (checks back off from 0.5 s, doubling to 4 s) only when
+        the service's status shows it has not tracked it: a subscriber can lose a message,
+        but a frame tracked twice moves the tracker on twice, so a frame that is merely slow
+        (a loaded machine) is waited for, and a trial's outcome does not depend on the load.
+        """
         deadline = time.monotonic() + self.config.frame_timeout_s
-        wait, next_send = 0.5, 0.0
+        self.frames_pub.publish(frame)
+        wait = 0.5
+        next_check = time.monotonic() + wait
         while time.monotonic() < deadline:
-            now = time.monotonic()
-            if now >= next_send:
-                self.frames_pub.publish(frame)
-                next_send, wait = now + wait, min(2 * wait, 4.0)
             estimate = self.estimates.recv_latest(timeout_s=0.05)
             if estimate is not None and estimate.seq == frame.seq:
                 return estimate
             self.children.check()
+            if time.monotonic() >= next_check:
+                # answered between frames: after the frame being tracked, if any
+                if self.control.request(StatusRequest(request_id=frame.seq)).last_seq != frame.seq:
+                    self.frames_pub.publish(frame)  # lost on the way, or its estimate was
+                else:
+                    log.debug("frame %d tracked, its estimate not received yet", frame.seq)
+                next_check, wait = time.monotonic() + wait, min(2 * wait, 4.0)
         raise TimeoutError(f"no estimate of frame {frame.seq} within {self.config.frame_timeout_s:.0f} s")
 
     def plan(self, kind: str, last_seq: int, republish) -> tuple[GraspPlanReply, float]:
