@@ -18,11 +18,17 @@ import sys
 _PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
-def main() -> None:
-    parent, module, args = int(sys.argv[1]), sys.argv[2], sys.argv[3:]
+def die_with_parent(parent: int) -> bool:
+    """Have this process sent SIGTERM when its parent dies (Linux; elsewhere nothing), and
+    return whether its parent is still ``parent`` (pid), the process that started it."""
     if sys.platform.startswith("linux"):
         ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
-    if os.getppid() != parent:
+    return os.getppid() == parent
+
+
+def main() -> None:
+    parent, module, args = int(sys.argv[1]), sys.argv[2], sys.argv[3:]
+    if not die_with_parent(parent):
         sys.exit(f"{module}: the process that started it has ended")
     sys.argv = [module, *args]
     runpy.run_module(module, run_name="__main__", alter_sys=True)

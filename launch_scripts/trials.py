@@ -55,6 +55,7 @@ from pathlib import Path
 from tqdm import tqdm
 
 from ipc.messages import GraspPlan
+from launch_scripts._child import die_with_parent
 from launch_scripts.cli import OneLineParser, add_log_level_argument, configure_logging, positive_int
 from launch_scripts.trial_runner.report import markdown, report, write_json
 from launch_scripts.trial_runner.trial import (
@@ -141,8 +142,11 @@ def _worker_output_to(path: str) -> None:
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(process)d %(levelname)s %(name)s: %(message)s")
 
 
-def _trial_process(connection, trial, seed: int, config: TrialConfig, output: str) -> None:
-    """The body of a trial's process: run it and send its record to the runner."""
+def _trial_process(connection, trial, seed: int, config: TrialConfig, output: str, runner: int) -> None:
+    """The body of a trial's process: run it and send its record to the runner (pid
+    ``runner``), dying with the runner if it is killed."""
+    if not die_with_parent(runner):
+        return
     _worker_output_to(output)
     connection.send(trial(seed, config))
     connection.close()
@@ -176,8 +180,8 @@ def _run_local(seeds: list[int], config: TrialConfig, workers: int, progress, tr
             while queue and len(running) < workers:
                 seed = queue.pop(0)
                 receive, send = context.Pipe(duplex=False)
-                process = context.Process(target=_trial_process, args=(send, trial, seed, config, output), daemon=True,
-                                          name=f"trial seed {seed}")
+                process = context.Process(target=_trial_process, args=(send, trial, seed, config, output, os.getpid()),
+                                          daemon=True, name=f"trial seed {seed}")
                 process.start()
                 send.close()  # only the child writes; its end closes when the child ends
                 running[seed] = {"process": process, "connection": receive, "record": None}

@@ -260,6 +260,35 @@ def move_grippers(scene, moves, duration_s: float, on_frame: Callable[[], None] 
             on_frame()
 
 
+def pull_apart(scene, first, second, speed_m_s: float, max_apart_m: float, stop: Callable[[], bool],
+               on_frame: Callable[[], None] | None = None) -> bool:
+    """Move two grippers apart, one camera frame at a time, until ``stop()`` is True.
+
+    scene : a scene with ``fps`` and ``step()``; first, second : ``sim.physics.Gripper``
+    speed_m_s : each gripper moves outwards this fast, along the horizontal line through both
+    max_apart_m : they stop there, horizontally apart, whatever ``stop`` says
+    stop : asked before each frame's move, e.g. whether the force sensors feel the cloth taut
+    on_frame : called after each frame's step
+    returns True when ``stop`` ended the pull, False when the grippers reached ``max_apart_m``
+    """
+    axis = np.asarray(second.position, dtype=np.float64) - np.asarray(first.position, dtype=np.float64)
+    axis[2] = 0.0
+    norm = float(np.linalg.norm(axis))
+    axis = axis / norm if norm > 1e-9 else np.array([1.0, 0.0, 0.0])
+    step = float(speed_m_s) / scene.fps
+    while not stop():
+        apart = float(np.dot(second.position - first.position, axis))
+        if apart >= max_apart_m - 1e-9:
+            return False
+        grow = min(step, 0.5 * (max_apart_m - apart))
+        first.move_to(first.position - grow * axis)
+        second.move_to(second.position + grow * axis)
+        scene.step()
+        if on_frame is not None:
+            on_frame()
+    return True
+
+
 @dataclass(frozen=True)
 class Closing:
     """What a gripper's fingers closed on.

@@ -21,6 +21,7 @@ import tempfile
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 
 from perception.geometry import check_vector
 from sim.cloth_mesh import ClothMesh, write_obj
@@ -118,6 +119,23 @@ def slerp(q0: np.ndarray, q1: np.ndarray, t: float) -> np.ndarray:
     return (np.sin((1 - t) * theta) * q0 + np.sin(t * theta) * q1) / np.sin(theta)
 
 
+def _mass_springs(mesh: ClothMesh, stiffness_n_m: float, bending_ratio: float) -> tuple[np.ndarray, np.ndarray]:
+    """The springs PyBullet's mass-spring cloth puts between nodes: (S, 2) int64 node pairs
+    and (S,) float64 spring constants (N/m). A stretch spring along each mesh edge, and a
+    bending spring (``bending_ratio`` as stiff) between every two nodes two edges apart."""
+    edges = mesh.edges()
+    n = mesh.n_vertices
+    ones = np.ones(len(edges))
+    links = sp.coo_matrix((ones, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
+    links = links + links.T
+    two = sp.triu(links @ links, k=1).tocsr()
+    two = (two - two.multiply(links)).tocoo()  # less the pairs a stretch spring already joins
+    two.eliminate_zeros()
+    bending = np.stack([two.row, two.col], axis=1).astype(np.int64)
+    constants = np.concatenate([np.full(len(edges), stiffness_n_m), np.full(len(bending), stiffness_n_m * bending_ratio)])
+    return np.concatenate([edges.astype(np.int64), bending]), constants
+
+
 class Gripper:
     """A kinematic holder: a massless body moved by pose that anchors cloth nodes.
 
@@ -157,6 +175,30 @@ class Gripper:
     @property
     def is_closed(self) -> bool:
         return bool(self._held)
+
+    def cloth_force_n(self) -> np.ndarray:
+        """(3,) float64 newtons, world frame: the force the cloth pulls the gripper with, as a
+        force sensor at its wrist reads it (less the gripper's own weight).
+
+        The cloth's springs from the nodes the gripper holds to the nodes it does not (their
+        extension beyond the rest length times the spring constant, along the spring), plus
+        the held nodes' weight; the springs' damping is left out (nothing at rest, little at
+        a slow pull). Hanging at rest, it reads the cloth's weight. Zero when it holds nothing.
+        """
+        physics = self._physics
+        if not self._held:
+            return np.zeros(3)
+        held = np.zeros(physics.cloth_mesh.n_vertices, dtype=bool)
+        held[self._held] = True
+        springs = physics.cloth_springs
+        crossing = held[springs[:, 0]] != held[springs[:, 1]]
+        a, b = springs[crossing, 0], springs[crossing, 1]
+        inner, outer = np.where(held[a], a, b), np.where(held[a], b, a)
+        V = physics.cloth_vertices()
+        d = V[outer] - V[inner]
+        length = np.maximum(np.linalg.norm(d, axis=1), 1e-12)
+        pull = physics.cloth_spring_n_m[crossing] * (length - physics.cloth_spring_rest_m[crossing]) / length
+        return (pull[:, None] * d).sum(axis=0) + len(self._held) * physics.cloth_node_mass_kg * physics.gravity_m_s2
 
     def move_to(self, position, quat_xyzw=None) -> None:
         """Pose to reach by the end of the next ``ClothPhysics.advance``.
@@ -227,7 +269,8 @@ class ClothPhysics:
         p = self.pybullet
         self.client = p.connect(p.DIRECT)
         p.resetSimulation(p.RESET_USE_DEFORMABLE_WORLD, physicsClientId=self.client)
-        p.setGravity(*check_vector("gravity_m_s2", gravity_m_s2), physicsClientId=self.client)
+        self.gravity_m_s2 = check_vector("gravity_m_s2", gravity_m_s2)
+        p.setGravity(*self.gravity_m_s2, physicsClientId=self.client)
         p.setTimeStep(self.timestep_s, physicsClientId=self.client)
         self._tmp = tempfile.TemporaryDirectory(prefix="clothkit_sim_")
         self.time_s = 0.0
@@ -308,6 +351,12 @@ class ClothPhysics:
         # alpha 0: the TinyRenderer skips the soft body entirely (see sim.camera)
         p.changeVisualShape(self.cloth_id, -1, rgbaColor=[1.0, 1.0, 1.0, 0.0], physicsClientId=self.client)
         self.cloth_mesh = mesh
+        # what the grippers' force sensors need (Gripper.cloth_force_n): PyBullet's springs,
+        # resting at the lengths the cloth was loaded with
+        self.cloth_springs, self.cloth_spring_n_m = _mass_springs(mesh, stiffness, material.bending_ratio)
+        self.cloth_spring_rest_m = np.linalg.norm(verts[self.cloth_springs[:, 0]] - verts[self.cloth_springs[:, 1]],
+                                                  axis=1)
+        self.cloth_node_mass_kg = material.node_mass_kg(mesh)
         loaded = self.cloth_vertices()
         if loaded.shape != verts.shape or np.abs(loaded - verts).max() > 1e-4:
             raise RuntimeError("add_cloth: PyBullet reordered or moved the cloth's nodes")

@@ -44,7 +44,7 @@ from ipc.messages import (
 )
 from perception.geometry import invert_transform, transform_points
 from perception.hanging import HangingCue
-from sim.grasp_execution import close_fingers, fingertip_target, move_grippers, plan_to_world
+from sim.grasp_execution import close_fingers, fingertip_target, move_grippers, plan_to_world, pull_apart
 from sim.ground_truth import error_summary, vertex_errors
 from sim.laundry.controller import (
     MIN_CORNER_VISIBLE,
@@ -57,7 +57,7 @@ from sim.laundry.judge import TOLERANCE_M, judge_unfold
 from sim.laundry.pictures import caption, draw_plan, save_png, strip
 from sim.laundry.segment import cloth_seen, mask_from_reference, seen_cloth_points
 from sim.laundry.truth import nearest_corner
-from sim.laundry.unfold import arm_for, lift_target, second_fingertip, stretch_targets
+from sim.laundry.unfold import TautSensor, arm_for, lift_target, second_fingertip, stretch_targets
 
 log = logging.getLogger(__name__)
 
@@ -279,6 +279,7 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
         scene.step_coming_to_rest()
         tracking()
     plan_seq = tracking.last_seq
+    weight_n = float(np.linalg.norm(hand1.gripper.cloth_force_n()))  # the wrist sensor, the cloth hanging at rest
 
     # second corner
     second_plan, distance, second_vertex, details = _second_plan(scene, link, config, tracking, reference,
@@ -304,13 +305,23 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
         tracking.holds.append((second_vertex, hand2))
     record["second_grasp"].update(_grasp_record(second, scene))
 
-    # stretch
+    # stretch: most of the way to the tracked mesh's distance, then on until the wrists feel the edge taut
+    felt_taut = None
     if second.grasped_uv is not None:
         if distance is None or not math.isfinite(distance) or distance <= 0:
             distance = float(np.linalg.norm(hand1.gripper.position - hand2.gripper.position))
-        t1, t2 = stretch_targets(hand1.gripper.position, hand2.gripper.position, distance, scene.T_world_cam)
+        t1, t2 = stretch_targets(hand1.gripper.position, hand2.gripper.position, motion.pull_from * distance,
+                                 scene.T_world_cam)
         tracking.phase = "stretch"
         move_grippers(scene, [(hand1.gripper, t1, None), (hand2.gripper, t2, None)], motion.stretch_s, tracking)
+        for _ in range(round(motion.pull_pause_s * scene.fps)):  # the swing of that motion is no pull on the edge
+            scene.step_coming_to_rest()
+            tracking()
+        g1, g2 = hand1.gripper, hand2.gripper
+        sensor = TautSensor(weight_n, motion)
+        felt_taut = pull_apart(scene, g1, g2, motion.pull_speed_m_s, motion.max_stretch * distance,
+                               lambda: sensor(g1.cloth_force_n(), g2.cloth_force_n(), g1.position, g2.position),
+                               tracking)
         tracking.phase = "settle"
         for _ in range(max(1, round(motion.settle_s * scene.fps))):
             scene.step_coming_to_rest()
@@ -326,7 +337,8 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
                         "second_corner": names[verdict.second_corner] if verdict.second_corner >= 0 else None,
                         "first_error_m": _finite(verdict.first_error_m), "second_error_m": _finite(verdict.second_error_m),
                         "adjacent": verdict.adjacent, "stretch": round(verdict.stretch, 3),
-                        "lowest_clearance_m": round(clearance, 4), "held_apart_m": round(apart, 4)}
+                        "lowest_clearance_m": round(clearance, 4), "held_apart_m": round(apart, 4),
+                        "felt_taut": felt_taut, "cloth_weight_n": round(weight_n, 3)}
     record["tracking"].update(_tracking_record(tracking, scene, lift_seqs, plan_seq, errors=False))
     timings = [estimates[s].timing_ms for s in tracking.phases]
     record["timing"]["tracking_ms"] = round(float(np.median(timings)), 1) if timings else None

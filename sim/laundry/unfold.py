@@ -9,8 +9,10 @@ as ``launch_scripts.trial_runner`` runs it:
    (``lift_target``: the robot reads the cloth's size from the tracked mesh);
 2. it holds still while the cloth comes to rest (``UnfoldConfig.hang_s``);
 3. the second gripper takes the corner the planner chose (``second_fingertip``);
-4. both move apart horizontally, sideways to the camera, until the points they hold are
-   as far apart as along the cloth (``stretch_targets``), and the cloth settles.
+4. both move apart horizontally, sideways to the camera, most of the way to the points
+   they hold being as far apart as along the cloth's tracked mesh (``stretch_targets``),
+   then on, slowly, until the force sensors at their wrists feel the edge between them
+   taut (``TautSensor``), and the cloth settles.
 
 Everything here is geometry in the world frame (z up, metres); the scene and the services
 stay with the caller.
@@ -19,6 +21,7 @@ stay with the caller.
 from __future__ import annotations
 
 import logging
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,7 +42,26 @@ class UnfoldConfig:
     hang_s : the robot holds still this long, frames tracked, while the cloth comes to rest
     pinch_overtravel_m : the second gripper's fingertips go this far past the planned
         corner along the approach, so that the jaw closes over the cloth's edge
-    stretch_s : duration of the stretching motion
+    stretch_s : duration of the motion that brings both grippers level before they pull apart
+    pull_speed_m_s : speed at which each gripper then moves outwards, frame by frame, until
+        the edge is taut (slow enough that the springs' damping adds little to the pull)
+    taut_pull, taut_stiffness_per_m, taut_frames : when the edge counts as taut
+        (``TautSensor``): the cloth pulls the grippers together with at least ``taut_pull``
+        times its weight, a pull growing by at least ``taut_stiffness_per_m`` times its weight
+        per metre of separation over the last ``taut_frames`` frames. An edge carrying the
+        whole cloth's weight sags like a chain: pulled with 1.5 times that weight it sags by
+        about a twelfth of its length, 2 % short of straight. Measured in the sim, pulled at
+        0.1 m/s: a towel hung by its top corners (45 x 35 cm, mesh spacings 2-3 cm) pulls with
+        at most 0.7 times its weight while its edge sags, and is felt taut 1.10-1.19 times
+        the corners' distance apart (PyBullet's cloth is far softer than fabric; at 0.5
+        times its weight, 0.93-1.03); a towel held by a corner and a point of its side edge,
+        the rest hanging from that edge, at 0.95 of the edge (0.85 at 0.5 times its weight)
+    pull_from : the grippers first move this fraction of the planned material distance
+        apart (the tracked mesh's, which may be too long: they would stretch the cloth by
+        then), wait ``pull_pause_s`` for the cloth to stop swinging, then move on while the
+        edge is slack
+    max_stretch : the grippers stop, taut or not, this many times the planned material
+        distance apart (a mesh laid on a folded cloth underestimates an edge's length)
     settle_s : time after the stretch before the cloth is judged
     shoulder_height_m : the arms' mounts above the table top
     shoulder_out_m : the mounts' distance beyond the table's left and right edges
@@ -50,15 +72,25 @@ class UnfoldConfig:
     hang_s: float = 1.5
     pinch_overtravel_m: float = 0.015
     stretch_s: float = 1.0
+    pull_speed_m_s: float = 0.1
+    taut_pull: float = 1.5
+    taut_stiffness_per_m: float = 8.0
+    taut_frames: int = 5
+    pull_from: float = 0.8
+    pull_pause_s: float = 0.5
+    max_stretch: float = 1.6
     settle_s: float = 1.0
     shoulder_height_m: float = 0.45
     shoulder_out_m: float = 0.15
 
     def __post_init__(self):
-        for name in ("lift_speed_m_s", "stretch_s"):
+        for name in ("lift_speed_m_s", "stretch_s", "pull_speed_m_s", "taut_pull", "taut_stiffness_per_m",
+                     "pull_from", "max_stretch"):
             check_positive(f"UnfoldConfig.{name}", getattr(self, name))
-        for name in ("hang_clearance_m", "hang_s", "pinch_overtravel_m", "settle_s", "shoulder_height_m",
-                     "shoulder_out_m"):
+        if int(self.taut_frames) < 2:
+            raise ValueError(f"UnfoldConfig.taut_frames: expected an integer >= 2, got {self.taut_frames!r}")
+        for name in ("hang_clearance_m", "hang_s", "pinch_overtravel_m", "pull_pause_s", "settle_s",
+                     "shoulder_height_m", "shoulder_out_m"):
             check_positive(f"UnfoldConfig.{name}", getattr(self, name), allow_zero=True)
 
 
@@ -128,3 +160,44 @@ def stretch_targets(first_world: np.ndarray, second_world: np.ndarray, material_
     middle[2] = max(a[2], b[2])
     half = 0.5 * float(material_distance_m)
     return middle - half * across, middle + half * across
+
+
+class TautSensor:
+    """Whether the edge between two grippers pulling apart is taut, from their wrist force
+    sensors (``sim.physics.Gripper.cloth_force_n``), frame after frame.
+
+    Taut: the cloth pulls the grippers towards each other (the mean of both readings along
+    their separation) with at least ``taut_pull`` times its weight, and that pull grows with
+    their separation at least ``taut_stiffness_per_m`` times the weight per metre, fitted over
+    the last ``taut_frames`` readings. A cloth hanging between two grippers pulls them
+    together with part of its weight however slack the edge is, more the farther apart they
+    are, but slowly; only an edge pulled straight makes the pull grow steeply.
+
+    weight_n : the cloth's weight, as the first wrist read it while the cloth hung from it alone
+    """
+
+    def __init__(self, weight_n: float, config: UnfoldConfig):
+        self.weight_n = check_positive("TautSensor.weight_n", weight_n)
+        self.config = config
+        self._readings: deque[tuple[float, float]] = deque(maxlen=config.taut_frames)
+
+    def __call__(self, first_force_n: np.ndarray, second_force_n: np.ndarray, first_world: np.ndarray,
+                 second_world: np.ndarray) -> bool:
+        """Add one frame's readings (3,) newtons, world frame, with the grippers' positions (3,)
+        world metres; True when the edge between them is taut (class docstring)."""
+        axis = check_vector("second_world", second_world) - check_vector("first_world", first_world)
+        apart = float(np.linalg.norm(axis))
+        if apart < 1e-9:
+            return False
+        axis = axis / apart
+        inwards = 0.5 * (float(np.dot(check_vector("first_force_n", first_force_n), axis))
+                         - float(np.dot(check_vector("second_force_n", second_force_n), axis)))
+        self._readings.append((apart, inwards))
+        if len(self._readings) < self._readings.maxlen:
+            return False
+        separations, pulls = np.array(self._readings).T
+        if np.ptp(separations) < 1e-6:  # not moving apart: no stiffness to measure
+            return False
+        stiffness = float(np.polyfit(separations, pulls, 1)[0])
+        cfg = self.config
+        return inwards >= cfg.taut_pull * self.weight_n and stiffness >= cfg.taut_stiffness_per_m * self.weight_n

@@ -1,9 +1,11 @@
-"""PyBullet cloth physics: stretch while hanging, grippers, material maths."""
+"""PyBullet cloth physics: stretch while hanging, grippers and their force sensors, material maths."""
 
 import numpy as np
 import pytest
 
 from sim.cloth_mesh import edge_strain, rectangle_cloth, tshirt_cloth
+from sim.grasp_execution import pull_apart
+from sim.laundry.unfold import TautSensor, UnfoldConfig
 from sim.physics import ClothMaterial, ClothPhysics, slerp
 
 pytest.importorskip("pybullet")
@@ -210,3 +212,61 @@ def test_physics_checks_arguments():
         mesh = rectangle_cloth(0.2, 0.1, spacing_m=0.05)
         with pytest.raises(ValueError, match=r"vertices_world of shape \(15, 3\), got \(3, 3\)"):
             physics.add_cloth(mesh, np.zeros((3, 3)), ClothMaterial())
+
+
+@pytest.mark.slow
+def test_wrist_force_reads_the_weight_of_a_cloth_hanging_at_rest():
+    mesh = rectangle_cloth(0.4, 0.3, spacing_m=0.03)
+    material = ClothMaterial()
+    physics, (gripper,) = _hang(mesh, ("top_left",), 1.0)
+    with physics:
+        assert physics.add_gripper([0.0, 0.0, 1.0]).cloth_force_n().tolist() == [0.0, 0.0, 0.0]  # holds nothing
+        physics.settle_to_rest(3.0)
+        physics.advance(0.5)
+        force = gripper.cloth_force_n()
+        weight = material.total_mass_kg(mesh) * 9.81
+        # at rest the cloth pulls straight down with all its weight: a sensor that missed the
+        # bending springs would read ~11 % less, one that missed the held nodes' own weight less again
+        assert force[2] == pytest.approx(-weight, rel=0.02)
+        assert np.linalg.norm(force[:2]) < 0.02 * weight
+
+
+class _Stepper:
+    """The two things ``pull_apart`` needs of a scene: its frame rate and one frame of physics."""
+
+    fps = 30
+
+    def __init__(self, physics):
+        self.physics = physics
+
+    def step(self):
+        self.physics.advance(1.0 / self.fps)
+
+
+@pytest.mark.slow
+def test_pulling_apart_until_taut_stops_once_the_edge_is_straight():
+    mesh = rectangle_cloth(0.45, 0.35, spacing_m=0.025)
+    material = ClothMaterial()  # _hang's
+    physics, (first, second) = _hang(mesh, ("top_left", "top_right"), 0.5)
+    config = UnfoldConfig()
+    with physics:
+        weight = material.total_mass_kg(mesh) * 9.81
+        first.move_to(first.position + [0.12, 0.0, 0.0])  # together, the edge sagging between them
+        second.move_to(second.position - [0.12, 0.0, 0.0])
+        physics.advance(1.0)
+        physics.settle_to_rest(2.0)
+        frames = []
+        sensor = TautSensor(weight, config)
+        stopped = pull_apart(_Stepper(physics), first, second, config.pull_speed_m_s, 0.7,
+                             lambda: sensor(first.cloth_force_n(), second.cloth_force_n(), first.position,
+                                            second.position),
+                             lambda: frames.append(1))
+        apart = np.linalg.norm(second.position - first.position)
+        held_apart = np.linalg.norm(mesh.uv_m[mesh.landmarks["top_left"]] - mesh.uv_m[mesh.landmarks["top_right"]])
+        assert stopped and len(frames) > 10
+        # PyBullet's soft cloth stretches under the pull that straightens it (UnfoldConfig.taut_pull)
+        assert 0.95 * held_apart <= apart <= 1.25 * held_apart
+        assert first.position[2] == pytest.approx(1.5) and second.position[2] == pytest.approx(1.5)
+        # without the sensor the grippers go on to the limit
+        assert not pull_apart(_Stepper(physics), first, second, 0.3, 0.6, lambda: False)
+        assert np.linalg.norm(second.position - first.position) == pytest.approx(0.6)

@@ -1,6 +1,7 @@
 """Judging trials by ground truth, Wilson intervals, the empty-table mask, reports, the runner's arguments."""
 
 import json
+import sys
 import tempfile
 from pathlib import Path
 
@@ -271,6 +272,55 @@ def test_a_trial_process_that_dies_is_a_failed_record_and_the_others_run(tmp_pat
     assert failure_kind(by_seed[1]["failure"]) == "error: WorkerDied"
     assert all(by_seed[s]["success"] for s in (0, 2, 3))
     assert len(by_seed[2]["payload"]) == 200_000
+
+
+def sleeping_trial(seed, config):
+    """A stand-in for run_trial that writes its pid where the test reads it, then sleeps."""
+    import os
+    import time
+
+    Path(config.log_dir, f"pid{seed}").write_text(str(os.getpid()))
+    time.sleep(60)
+    return {"seed": seed}
+
+
+def _runner(log_dir):
+    """The body of a runner process that the test kills."""
+    from launch_scripts.trial_runner import TrialConfig
+    from launch_scripts.trials import _run_local
+
+    _run_local([0, 1], TrialConfig(log_dir=log_dir), workers=2, progress=lambda record: None, trial=sleeping_trial)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="dying with the parent is Linux's prctl")
+def test_trial_processes_die_with_a_runner_that_is_killed(tmp_path):
+    import multiprocessing
+    import os
+    import time
+
+    runner = multiprocessing.get_context("spawn").Process(target=_runner, args=(str(tmp_path),))
+    runner.start()
+    pids = []
+    deadline = time.monotonic() + 60
+    while len(pids) < 2 and time.monotonic() < deadline:
+        pids = [int(f.read_text()) for f in tmp_path.glob("pid*") if f.read_text()]
+        time.sleep(0.1)
+    assert len(pids) == 2, "the trial processes did not start"
+    runner.terminate()  # SIGTERM: no finally block runs in the runner
+    runner.join(10)
+
+    def alive(pid):
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        # a zombie (dead, not yet reaped by init) is not running
+        return Path(f"/proc/{pid}/stat").read_text().split(") ")[1][0] != "Z"
+
+    deadline = time.monotonic() + 10
+    while any(alive(pid) for pid in pids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not any(alive(pid) for pid in pids), "trial processes outlived their runner"
 
 
 # ----------------------------------------------------------------------------- Ray engine, without Ray

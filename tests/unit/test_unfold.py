@@ -15,7 +15,7 @@ from sim.laundry import LaundryScene, laundry_spec
 from sim.laundry.controller import MIN_CORNER_VISIBLE, MIN_EDGE_STRAIGHTNESS, edge_straightness, stretchable_corner
 from sim.laundry.judge import MIN_STRETCH, TOLERANCE_M, judge_unfold
 from sim.laundry.truth import rectangle_corners_uv, share_an_edge
-from sim.laundry.unfold import UnfoldConfig, arm_for, lift_target, shoulders, stretch_targets
+from sim.laundry.unfold import TautSensor, UnfoldConfig, arm_for, lift_target, shoulders, stretch_targets
 from tests.unit.test_grasp_adjacent import polygon_corner_of, towel_estimate, tshirt_estimate
 
 TOWEL, _ = rectangle_corners_uv(0.5, 0.4)
@@ -136,6 +136,32 @@ def test_stretch_targets_are_level_apart_by_the_material_distance_and_across_the
     assert abs(np.dot(tb - ta, across / np.linalg.norm(across))) == pytest.approx(0.45)
     assert np.dot(tb - ta, across) * np.dot(b - a, across) > 0
     np.testing.assert_allclose(0.5 * (ta + tb)[:2], 0.5 * (a + b)[:2])
+
+
+def test_taut_when_the_pull_is_strong_and_grows_steeply_as_the_grippers_part():
+    config = UnfoldConfig(taut_pull=0.5, taut_stiffness_per_m=20.0, taut_frames=3)
+    weight = 2.0
+    down = np.array([0.0, 0.0, -1.0])  # each carries half the weight
+
+    def feel(pulls, separations):
+        """Readings of grippers along y, apart by ``separations``, pulled together with ``pulls`` (N)."""
+        sensor = TautSensor(weight, config)
+        return [sensor(down + [0.0, f, 0.0], down - [0.0, f, 0.0], np.zeros(3), np.array([0.0, d, 0.0]))
+                for f, d in zip(pulls, separations)]
+
+    parting = [0.30, 0.31, 0.32, 0.33]
+    # a straight edge: the pull grows by 0.4 N a centimetre (20 weights per metre)
+    assert feel([0.9, 1.3, 1.7, 2.1], parting) == [False, False, True, True]
+    # a slack edge: a strong pull, but one that hardly grows (a hanging cloth's weight)
+    assert feel([1.5, 1.52, 1.54, 1.56], parting) == [False] * 4
+    # a steep rise of a weak pull (the springs pushing, then letting go) is not taut either
+    assert feel([-0.6, -0.3, 0.0, 0.3], parting) == [False] * 4
+    # not parting: nothing to fit
+    assert feel([1.0, 1.5, 2.0], [0.3, 0.3, 0.3]) == [False] * 3
+    with pytest.raises(ValueError, match="TautSensor.weight_n"):
+        TautSensor(0.0, config)
+    with pytest.raises(ValueError, match="taut_frames"):
+        UnfoldConfig(taut_frames=1)
 
 
 def test_each_arm_reaches_its_side_and_the_second_takes_the_other():
