@@ -305,7 +305,7 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
         tracking.holds.append((second_vertex, hand2))
     record["second_grasp"].update(_grasp_record(second, scene))
 
-    # stretch: most of the way to the tracked mesh's distance, then on until the wrists feel the edge taut
+    # stretch: to the tracked mesh's distance, then on until the wrists feel the edge taut
     felt_taut = None
     if second.grasped_uv is not None:
         if distance is None or not math.isfinite(distance) or distance <= 0:

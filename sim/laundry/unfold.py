@@ -9,10 +9,10 @@ as ``launch_scripts.trial_runner`` runs it:
    (``lift_target``: the robot reads the cloth's size from the tracked mesh);
 2. it holds still while the cloth comes to rest (``UnfoldConfig.hang_s``);
 3. the second gripper takes the corner the planner chose (``second_fingertip``);
-4. both move apart horizontally, sideways to the camera, most of the way to the points
-   they hold being as far apart as along the cloth's tracked mesh (``stretch_targets``),
-   then on, slowly, until the force sensors at their wrists feel the edge between them
-   taut (``TautSensor``), and the cloth settles.
+4. both move apart horizontally, sideways to the camera, until the points they hold are
+   as far apart as along the cloth's tracked mesh (``stretch_targets``), then on, slowly,
+   while the force sensors at their wrists feel the edge between them slack
+   (``TautSensor``), and the cloth settles.
 
 Everything here is geometry in the world frame (z up, metres); the scene and the services
 stay with the caller.
@@ -48,18 +48,18 @@ class UnfoldConfig:
     taut_pull, taut_stiffness_per_m, taut_frames : when the edge counts as taut
         (``TautSensor``): the cloth pulls the grippers together with at least ``taut_pull``
         times its weight, a pull growing by at least ``taut_stiffness_per_m`` times its weight
-        per metre of separation over the last ``taut_frames`` frames. An edge carrying the
-        whole cloth's weight sags like a chain: pulled with 1.5 times that weight it sags by
-        about a twelfth of its length, 2 % short of straight. Measured in the sim, pulled at
-        0.1 m/s: a towel hung by its top corners (45 x 35 cm, mesh spacings 2-3 cm) pulls with
-        at most 0.7 times its weight while its edge sags, and is felt taut 1.10-1.19 times
-        the corners' distance apart (PyBullet's cloth is far softer than fabric; at 0.5
-        times its weight, 0.93-1.03); a towel held by a corner and a point of its side edge,
-        the rest hanging from that edge, at 0.95 of the edge (0.85 at 0.5 times its weight)
+        per metre of separation over the last ``taut_frames`` frames. Measured in the sim,
+        pulled at 0.1 m/s: a towel hung by its top corners (45 x 35 cm, mesh spacings 2-3
+        cm) pulls with at most 0.7 times its weight while its edge sags, and is felt taut
+        0.93-1.03 times the corners' distance apart (at 1.5 times its weight, 1.10-1.19:
+        PyBullet's cloth is far softer than fabric). An edge carrying the rest of the cloth
+        hanging from it sags like a chain and pulls harder long before it is straight: a
+        towel held by a corner and a point of its side edge was felt taut at 0.82-0.85 of
+        that edge's length (0.95 at 1.5 times its weight), hence ``pull_from``
     pull_from : the grippers first move this fraction of the planned material distance
-        apart (the tracked mesh's, which may be too long: they would stretch the cloth by
-        then), wait ``pull_pause_s`` for the cloth to stop swinging, then move on while the
-        edge is slack
+        apart (the tracked mesh's: too long when a grasp missed its corner, too short on a
+        mesh laid on a folded cloth), wait ``pull_pause_s`` for the cloth to stop swinging,
+        then move on while the edge is slack
     max_stretch : the grippers stop, taut or not, this many times the planned material
         distance apart (a mesh laid on a folded cloth underestimates an edge's length)
     settle_s : time after the stretch before the cloth is judged
@@ -73,10 +73,10 @@ class UnfoldConfig:
     pinch_overtravel_m: float = 0.015
     stretch_s: float = 1.0
     pull_speed_m_s: float = 0.1
-    taut_pull: float = 1.5
+    taut_pull: float = 0.5
     taut_stiffness_per_m: float = 8.0
     taut_frames: int = 5
-    pull_from: float = 0.8
+    pull_from: float = 1.0
     pull_pause_s: float = 0.5
     max_stretch: float = 1.6
     settle_s: float = 1.0
