@@ -143,7 +143,8 @@ class Gripper:
     to it where they are now, so they follow its position and orientation; ``open()``
     releases them. ``move_to`` sets the pose it reaches at the end of the next
     ``ClothPhysics.advance`` (straight line, slerped orientation). The body has no
-    collision shape, so the cloth never collides with it.
+    collision shape, so the cloth never collides with it. ``cloth_force_n()`` is what a
+    force sensor at its wrist reads.
 
     Create it with ``ClothPhysics.add_gripper``.
     """

@@ -42,9 +42,10 @@ class UnfoldConfig:
     hang_s : the robot holds still this long, frames tracked, while the cloth comes to rest
     pinch_overtravel_m : the second gripper's fingertips go this far past the planned
         corner along the approach, so that the jaw closes over the cloth's edge
-    stretch_s : duration of the motion that brings both grippers level before they pull apart
-    pull_speed_m_s : speed at which each gripper then moves outwards, frame by frame, until
-        the edge is taut (slow enough that the springs' damping adds little to the pull)
+    stretch_s : duration of the motion that brings both grippers level, ``pull_from`` times
+        the planned material distance apart (``stretch_targets``)
+    pull_speed_m_s : speed at which each gripper then moves outwards, frame by frame, while
+        the edge is slack (slow enough that the springs' damping adds little to the pull)
     taut_pull, taut_stiffness_per_m, taut_frames : when the edge counts as taut
         (``TautSensor``): the cloth pulls the grippers together with at least ``taut_pull``
         times its weight, a pull growing by at least ``taut_stiffness_per_m`` times its weight
@@ -53,9 +54,9 @@ class UnfoldConfig:
         cm) pulls with at most 0.7 times its weight while its edge sags, and is felt taut
         0.93-1.03 times the corners' distance apart (at 1.5 times its weight, 1.10-1.19:
         PyBullet's cloth is far softer than fabric). An edge carrying the rest of the cloth
-        hanging from it sags like a chain and pulls harder long before it is straight: a
-        towel held by a corner and a point of its side edge was felt taut at 0.82-0.85 of
-        that edge's length (0.95 at 1.5 times its weight), hence ``pull_from``
+        hanging from it sags like a chain and pulls hard long before it is straight: a towel
+        held by a corner and a point of its side edge was felt taut at 0.85 of that edge's
+        length, and at 0.82-0.95 with 1.5 times its weight; hence ``pull_from``
     pull_from : the grippers first move this fraction of the planned material distance
         apart (the tracked mesh's: too long when a grasp missed its corner, too short on a
         mesh laid on a folded cloth), wait ``pull_pause_s`` for the cloth to stop swinging,
