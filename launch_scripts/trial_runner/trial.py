@@ -223,6 +223,7 @@ class _Link:
         the service's status shows it has not tracked it: a subscriber can lose a message,
         but a frame tracked twice moves the tracker on twice, so a frame that is merely slow
         (a loaded machine) is waited for, and a trial's outcome does not depend on the load.
+        A service gone idle (it refused to build the mesh) raises TimeoutError at once, saying why.
         """
         deadline = time.monotonic() + self.config.frame_timeout_s
         self.frames_pub.publish(frame)
@@ -235,7 +236,11 @@ class _Link:
             self.children.check()
             if time.monotonic() >= next_check:
                 # answered between frames: after the frame being tracked, if any
-                if self.control.request(StatusRequest(request_id=frame.seq)).last_seq != frame.seq:
+                status = self.control.request(StatusRequest(request_id=frame.seq))
+                if status.state == "idle":  # e.g. it refused to build the mesh: no estimate will come
+                    raise TimeoutError(f"no estimate of frame {frame.seq}: the perception service is idle "
+                                       f"({status.message or 'no mesh'})")
+                if status.last_seq != frame.seq:
                     self.frames_pub.publish(frame)  # lost on the way, or its estimate was
                 else:
                     log.debug("frame %d tracked, its estimate not received yet", frame.seq)

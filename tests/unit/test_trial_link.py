@@ -13,8 +13,8 @@ class _Service:
     """Stands in for the perception service's sockets: the estimate of a frame comes
     ``tracking_s`` after the first copy of it that was not lost (the first ``lose`` copies are)."""
 
-    def __init__(self, tracking_s: float, lose: int = 0):
-        self.tracking_s, self.lose = tracking_s, lose
+    def __init__(self, tracking_s: float, lose: int = 0, state: str = "tracking"):
+        self.tracking_s, self.lose, self.state = tracking_s, lose, state
         self.published, self.tracked_at = [], None
 
     def publish(self, frame):
@@ -32,8 +32,9 @@ class _Service:
         # the service answers between frames: after the frame it is tracking
         if self.tracked_at is not None:
             time.sleep(max(0.0, self.tracked_at - time.monotonic()))
-            return StatusReply(request_id=request.request_id, state="tracking", last_seq=self.published[-1])
-        return StatusReply(request_id=request.request_id, state="tracking", last_seq=-1)
+            return StatusReply(request_id=request.request_id, state=self.state, last_seq=self.published[-1])
+        return StatusReply(request_id=request.request_id, state=self.state, last_seq=-1,
+                           message="frame 0: initialisation failed: the object is too large")
 
 
 def _link(service, timeout_s=10.0):
@@ -60,3 +61,12 @@ def test_no_estimate_times_out():
     with pytest.raises(TimeoutError, match="no estimate of frame 5 within 1 s"):
         _Link.estimate_of(_link(service, timeout_s=1.0), SimpleNamespace(seq=5))
     assert len(service.published) >= 2
+
+
+def test_a_service_that_went_idle_is_not_waited_for():
+    service = _Service(tracking_s=0.1, lose=100, state="idle")
+    started = time.monotonic()
+    with pytest.raises(TimeoutError, match=r"no estimate of frame 0: the perception service is idle \(frame 0: "
+                                           r"initialisation failed: the object is too large\)"):
+        _Link.estimate_of(_link(service, timeout_s=30.0), SimpleNamespace(seq=0))
+    assert time.monotonic() - started < 5.0
