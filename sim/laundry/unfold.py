@@ -174,7 +174,9 @@ class TautSensor:
     their separation at least ``taut_stiffness_per_m`` times the weight per metre, fitted over
     the last ``taut_frames`` readings. A cloth hanging between two grippers pulls them
     together with part of its weight however slack the edge is, more the farther apart they
-    are, but slowly; only an edge pulled straight makes the pull grow steeply.
+    are, but slowly; only an edge pulled straight makes the pull grow steeply. The unfold
+    trials ask the pull alone (``taut_stiffness_per_m`` 0: only that it does not fall), since
+    their grippers start where the tracked mesh says the edge is straight.
 
     weight_n : the cloth's weight, as the first wrist read it while the cloth hung from it alone
     """
