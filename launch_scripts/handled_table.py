@@ -12,7 +12,8 @@ term) then tracks:
 the last two three times, by what the frames tell the tracker (``MASKS``): nothing
 ("unknown"); the occluder's exact mask (``RGBDFrame.occluder_mask``, "known"); everything
 a robot knows of its own doing ("robot"): that mask, the cloth vertex its closed gripper
-holds and where the fingers are (``RGBDFrame.held_vertices``), and the empty workspace
+holds (``sim.evaluation.handled.HOLD_REACH_M``) and where the fingers are
+(``RGBDFrame.held_vertices``), and the empty workspace
 seen before the cloth was there (the tracker's background). Every run starts from the true
 mask of the cloth as seen in its first frame (without what the occluder hides), so the
 table measures tracking, not the first frame's segmentation.
@@ -36,6 +37,7 @@ from sim.evaluation import SceneRecording, record_scene
 from sim.evaluation.figures import error_with_occlusion, overlay_strip
 from sim.evaluation.handled import (
     CONFIDENT,
+    HOLD_REACH_M,
     WORST_AREA_MIN,
     WRONG_MM,
     HandledScore,
@@ -177,7 +179,9 @@ def markdown(results: dict, seeds: list[int], noises: tuple) -> str:
              "every frame at 30 Hz; `dropped` every other frame (15 Hz, true timestamps). Masks: what the frames "
              "tell the tracker: `unknown` nothing; `known` the occluder's exact mask (`RGBDFrame.occluder_mask`); "
              "`robot` what a robot knows of its own doing: that mask, the cloth vertex its closed gripper holds "
-             "and where its fingers are (`RGBDFrame.held_vertices`), and the empty workspace seen before the cloth "
+             f"(the mesh's vertex nearest its fingers when they closed, if within {100 * HOLD_REACH_M:.0f} cm of them; on a mesh the tracker "
+             "builds anew, bound again the same way) and where its fingers are (`RGBDFrame.held_vertices`), and the "
+             "empty workspace seen before the cloth "
              "was there (the tracker's background). Every run starts from the true mask of the cloth as seen in "
              "its first frame. Presets: `default` (`TrackerConfig()`), `realtime` (`TrackerConfig.realtime()`), "
              "`no-stretch` (the defaults without the stretch term, `lambda_l` = 0).", "",

@@ -9,7 +9,10 @@ the same material points in its frame:
 
 - on a textured cloth, by the normalised correlation of their grey values: near 1 where
   the mesh sits on the texture it was made on, near 0 on another surface, whatever the
-  change of overall brightness and contrast;
+  change of overall brightness and contrast; and region by region (patches of the cloth a
+  few spacings wide, in material coordinates), since a mesh whose material points slid
+  by a few centimetres over part of the cloth (a corner lifted and folded over) still
+  correlates well as a whole, where the rest of it lies right;
 - on a plain cloth, by their colour: the median ratio of brightness (a lamp or a turn
   of the cloth changes it, within limits) and the median difference of chromaticity.
 
@@ -33,6 +36,14 @@ MIN_CHROMA_SPREAD = 0.01
 #: a surface found later is not the cloth when its spread is under this fraction of the cloth's
 #: (shading alone gives a plain arm a grey spread, never a print's spread of hue)
 SPREAD_KEPT = 0.25
+#: side of the regions of the regional check, in mesh spacings (in material coordinates)
+REGION_SPACINGS = 3.0
+#: a region is compared when it has this many samples seen then and now, textured then
+REGION_MIN_SAMPLES = 8
+#: the regional check says something when at least this many regions are compared
+MIN_REGIONS = 4
+#: a region whose correlation is under this has slid off its own texture
+REGION_SLID_NCC = 0.2
 
 
 def _material_points(faces: np.ndarray, n_vertices: int) -> sp.csr_matrix:
@@ -82,6 +93,20 @@ def _ncc(before: np.ndarray, now: np.ndarray) -> float:
     return float(np.sum(a * b) / spread) if spread > 1e-6 else 0.0
 
 
+def _region_ncc(before: np.ndarray, now: np.ndarray, region: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per region: (normalised correlation of the grey values then and now, samples,
+    grey-level spread then), each (R,) over region labels 0..R-1; colours (P, 3), region (P,) int."""
+    a, b = before.mean(axis=1).astype(np.float64), now.mean(axis=1).astype(np.float64)
+    n = np.bincount(region).astype(np.float64)
+    count = np.maximum(n, 1.0)
+    a = a - (np.bincount(region, a, len(n)) / count)[region]
+    b = b - (np.bincount(region, b, len(n)) / count)[region]
+    saa, sbb, sab = (np.bincount(region, x, len(n)) for x in (a * a, b * b, a * b))
+    spread = np.sqrt(saa * sbb)
+    ncc = np.where(spread > 1e-6, sab / np.maximum(spread, 1e-12), 0.0)
+    return ncc, n, np.sqrt(saa / count)
+
+
 def _ramp(value: float, zero: float, one: float) -> float:
     """0 at ``zero``, 1 at ``one``, linear between (either order), clipped."""
     return float(np.clip((value - zero) / (one - zero), 0.0, 1.0))
@@ -98,10 +123,12 @@ class AppearanceModel:
         and the darker or lighter ring that makes along any surface's outline correlates as
         well on a plain surface as on the print (while on a mesh slid off the cloth it is
         what shows the slide)
+    canonical : (N, 3) the mesh's material coordinates (its rest shape), which the regions
+        of the regional check divide; None: ``vertices`` as they are now
     """
 
     def __init__(self, rgb: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, visible: np.ndarray,
-                 spacing_m: float, boundary: np.ndarray | None = None):
+                 spacing_m: float, boundary: np.ndarray | None = None, canonical: np.ndarray | None = None):
         faces = np.asarray(faces)
         self.S = _material_points(faces, len(vertices))
         on_outline = np.zeros(len(vertices), bool)
@@ -118,6 +145,11 @@ class AppearanceModel:
         self.textured = bool(known.sum() >= MIN_SAMPLES and np.std(grey) >= MIN_SPREAD)
         chroma = seen[:, :2] / _brightness(seen)[:, None]
         self.chroma_spread = float(np.std(chroma, axis=0).max()) if known.sum() >= MIN_SAMPLES else 0.0
+        rest = self.S @ np.asarray(vertices if canonical is None else canonical, np.float64)
+        cells = np.floor((rest - rest.min(axis=0)) / (REGION_SPACINGS * spacing_m)).astype(np.int64)
+        _, self._region = np.unique(cells, axis=0, return_inverse=True)
+        self._region = self._region.reshape(-1)
+        self.last_regions_slid = 0.0  # the regional check's last value (see ``_regions_slid``)
 
     def could_be(self, other: AppearanceModel) -> bool:
         """Whether the surface ``other`` was made on (found later, by segmentation) can be this
@@ -130,6 +162,19 @@ class AppearanceModel:
     @staticmethod
     def _seen(visible: np.ndarray, faces: np.ndarray) -> np.ndarray:
         return np.concatenate([visible, np.all(visible[faces], axis=1)])
+
+    @staticmethod
+    def _regions_slid(before: np.ndarray, now: np.ndarray, region: np.ndarray) -> float:
+        """The share of the compared samples that lie in regions whose texture no longer
+        correlates (under ``REGION_SLID_NCC``); 0 when fewer than ``MIN_REGIONS`` regions have
+        ``REGION_MIN_SAMPLES`` samples and a texture then (a grey spread of ``MIN_SPREAD``)."""
+        if not len(region):
+            return 0.0
+        ncc, n, spread = _region_ncc(before, now, region)
+        compared = (n >= REGION_MIN_SAMPLES) & (spread >= MIN_SPREAD)
+        if compared.sum() < MIN_REGIONS:
+            return 0.0
+        return float(n[compared & (ncc < REGION_SLID_NCC)].sum() / n[compared].sum())
 
     def likeness(self, rgb: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray,
                  visible: np.ndarray) -> float:
@@ -146,7 +191,8 @@ class AppearanceModel:
             if inner.sum() >= MIN_SAMPLES:
                 ncc = min(ncc, _ncc(before[inner], now[inner]))
             self.last_value = ncc
-            return _ramp(ncc, 0.15, 0.4)
+            self.last_regions_slid = self._regions_slid(before[inner], now[inner], self._region[both][inner])
+            return min(_ramp(ncc, 0.15, 0.4), _ramp(self.last_regions_slid, 0.45, 0.15))
         bright_before, bright_now = _brightness(before), _brightness(now)
         ratio = float(np.median(bright_now / bright_before))
         chroma = float(np.median(np.linalg.norm(now / bright_now[:, None] - before / bright_before[:, None], axis=1)))

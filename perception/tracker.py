@@ -433,7 +433,7 @@ class MeshTracker:
         self._memory.push(self._memory.small(obs.grey))
         visible = self._states(V, frame) == VISIBLE
         self._appearance = AppearanceModel(frame.rgb, V, mesh.faces, frame.camera.K, visible, mesh.spacing_m,
-                                           mesh.boundary)
+                                           mesh.boundary, mesh.canonical)
         self._colour = ColourModel(frame.rgb, obs.mask)
         self._registration = GlobalRegistration(resolve_kind("auto"), rng=self._rng)
         self._registration.build(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)

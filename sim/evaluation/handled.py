@@ -44,6 +44,10 @@ CONFIDENT = 0.5
 #: Frames whose hidden faces hold at least this fraction of the canonical mesh's area count
 #: towards the worst occluded area ratio.
 WORST_AREA_MIN = 0.02
+#: A robot takes a mesh vertex as the one its closed gripper holds only when the vertex
+#: lies this close to the fingertip centre (metres): between the jaws of the scenes'
+#: grippers, which open 6-9 cm.
+HOLD_REACH_M = 0.03
 
 
 @dataclass
@@ -140,9 +144,12 @@ def track_frames(frames: list, config: TrackerConfig, init_mask: np.ndarray, lab
 
     background : the empty workspace from the same camera, given at initialisation, or None
     grips : None, or per frame the robot's closed grippers (``SceneRecording.grips``): each
-        holds the mesh vertex nearest to it when it closed (bound again on a mesh the tracker
-        builds anew), and the frames say so (``RGBDFrame.held_vertices``), as a robot that
-        knows what it holds and where its fingers are would send them
+        holds the mesh vertex nearest to it when it closed, if that vertex lies within
+        ``HOLD_REACH_M`` of it, and the frames say so (``RGBDFrame.held_vertices``), as a
+        robot that knows what it holds and where its fingers are would send them. On a mesh
+        the tracker builds anew (new vertex ids) a gripper is bound again the same way: a
+        new mesh laid over the cloth that shows often ends centimetres short of the corner
+        hidden in the fingers, and then no vertex of it is known to be held
     returns (MeshEstimates, failure): the estimates up to the first frame the tracker raised
     on, and that error as one line ("" when every frame was tracked)
     """
@@ -168,17 +175,20 @@ def track_frames(frames: list, config: TrackerConfig, init_mask: np.ndarray, lab
 
 
 def _holding(frame: RGBDFrame, grips: dict, held: dict, previous: MeshEstimate) -> RGBDFrame:
-    """``frame`` with the held vertices of the grippers in ``grips`` (binding in ``held`` the
-    ones that just closed to the vertex of ``previous`` nearest to them)."""
+    """``frame`` with the held vertices of the grippers in ``grips`` (binding in ``held`` each
+    closed gripper not bound yet to the vertex of ``previous`` nearest to it, when that lies
+    within ``HOLD_REACH_M``; a gripper with none so near stays unbound and is not sent)."""
     for gripper in list(held):
         if gripper not in grips:
             del held[gripper]  # opened
-    if not grips:
-        return frame
     for gripper, point in grips.items():
         if gripper not in held:
-            held[gripper] = int(np.argmin(np.linalg.norm(previous.vertices - point, axis=1)))
-    order = sorted(grips)
+            distance = np.linalg.norm(previous.vertices - point, axis=1)
+            if distance.min() <= HOLD_REACH_M:
+                held[gripper] = int(np.argmin(distance))
+    order = [g for g in sorted(grips) if g in held]
+    if not order:
+        return frame
     return dataclasses.replace(frame, held_vertices=np.array([held[g] for g in order], np.int32),
                                held_points_m=np.stack([grips[g] for g in order]).astype(np.float64))
 

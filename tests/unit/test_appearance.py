@@ -60,3 +60,21 @@ def test_a_print_does_not_look_like_a_plain_surface_with_the_same_outline():
     model = AppearanceModel(_on_background(printed), V, MESH.faces, K, seen, 0.02, outline)
     assert model.likeness(_on_background(printed), V, MESH.faces, K, seen) == 1.0
     assert model.likeness(_on_background(plain), V, MESH.faces, K, seen) == 0.0
+
+
+def test_a_mesh_slid_over_part_of_the_print_is_told_by_its_regions():
+    """Half the mesh moved by 4 cm along the print (a lifted part of the cloth whose material
+    points slid): the whole still correlates as well as the global check asks (the other
+    half lies right); region by region the slide shows."""
+    # grey blocks about a mesh spacing wide (10 px here): a print's shapes and letters
+    printed = np.kron(np.random.default_rng(0).integers(30, 230, size=(24, 32, 1)), np.ones((10, 10, 3))).astype(np.uint8)
+    seen = np.ones(MESH.n_vertices, bool)
+    model = AppearanceModel(printed, V, MESH.faces, K, seen, 0.02, canonical=np.c_[MESH.uv_m, np.zeros(MESH.n_vertices)])
+    assert model.likeness(printed, V, MESH.faces, K, seen) == 1.0
+    assert model.last_regions_slid == 0.0
+    slid = V.copy()
+    slid[MESH.uv_m[:, 0] < 0.2, :2] += 0.03  # the left half, 4.2 cm along the diagonal
+    likeness = model.likeness(printed, slid, MESH.faces, K, seen)
+    assert model.last_value > 0.4, "as a whole the slid mesh correlates: the global check alone gives 1"
+    assert model.last_regions_slid > 0.25
+    assert likeness < 0.6
