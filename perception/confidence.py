@@ -15,8 +15,9 @@ that is right scores about 1 on it:
   continuous with the table), it says nothing and counts 1;
 - ``precision``: the fraction of the vertices seen that project onto the object;
 - ``appearance``: how alike the mesh's material points look now and when the mesh was
-  made: their texture (normalised correlation), or on a plain cloth their colour (a mesh
-  on the wrong surface sees another texture or colour);
+  made: their texture (normalised correlation, over the whole mesh and region by region),
+  or on a plain cloth their colour (a mesh on the wrong surface sees another texture or
+  colour; one slid over part of a print sees another texture there);
 - ``unstretched``: cloth hardly stretches, so a mesh whose edges are much longer than when
   it was laid on the object (median over the edges) has been pulled onto something else,
   such as a surface farther away;
