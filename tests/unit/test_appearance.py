@@ -63,7 +63,7 @@ def test_a_print_does_not_look_like_a_plain_surface_with_the_same_outline():
 
 
 def test_a_mesh_slid_over_part_of_the_print_is_told_by_its_regions():
-    """Half the mesh moved by 4 cm along the print (a lifted part of the cloth whose material
+    """Half the mesh moved by 4.2 cm along the print (a lifted part of the cloth whose material
     points slid): the whole still correlates as well as the global check asks (the other
     half lies right); region by region the slide shows."""
     # grey blocks about a mesh spacing wide (10 px here): a print's shapes and letters

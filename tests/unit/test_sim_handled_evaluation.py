@@ -6,7 +6,7 @@ import pytest
 from ipc.messages import CameraInfo, MeshEstimate, RGBDFrame
 from sim.cloth_mesh import rectangle_cloth
 from sim.evaluation import SceneRecording
-from sim.evaluation.handled import CONFIDENT, WRONG_MM, _holding, cloth_hidden_fraction, score_run
+from sim.evaluation.handled import CONFIDENT, HOLD_REACH_M, WRONG_MM, _holding, cloth_hidden_fraction, score_run
 from sim.ground_truth import hidden_behind_occluder
 
 W, H = 100, 80
@@ -143,3 +143,18 @@ def test_a_closing_gripper_holds_the_vertex_nearest_to_it_until_it_opens():
     np.testing.assert_array_equal(frame.held_vertices, [0, near])
     assert frame.held_vertices.dtype == np.int32
     assert _holding(rec.frames[3], {}, held, moved).held_vertices is None and held == {}, "opened: released"
+
+
+def test_a_gripper_with_no_vertex_between_its_fingers_holds_none_until_one_comes():
+    """A mesh built anew on a hanging cloth often ends short of the corner in the fingers:
+    its nearest vertex, centimetres away, is not what the gripper holds."""
+    rec, mesh = _recording()
+    previous = _estimate(rec.gt_vertices[0], mesh)
+    nearest = int(np.argmin(np.linalg.norm(rec.gt_vertices[0] - [0.1, 0.05, 1.5], axis=1)))
+    point = rec.gt_vertices[0][nearest] + [0.0, 0.0, -(HOLD_REACH_M + 0.01)]  # in front of the cloth
+    held: dict = {}
+    frame = _holding(rec.frames[1], {0: point}, held, previous)
+    assert frame.held_vertices is None and held == {}
+    closer = _estimate(rec.gt_vertices[0] + [0.0, 0.0, -HOLD_REACH_M], mesh)
+    frame = _holding(rec.frames[2], {0: point}, held, closer)
+    np.testing.assert_array_equal(frame.held_vertices, [nearest])
