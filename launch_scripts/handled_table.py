@@ -180,10 +180,9 @@ def markdown(results: dict, seeds: list[int], noises: tuple) -> str:
              "tell the tracker: `unknown` nothing; `known` the occluder's exact mask (`RGBDFrame.occluder_mask`); "
              "`robot` what a robot knows of its own doing: that mask, the cloth vertex its closed gripper holds "
              f"(the mesh's vertex nearest its fingers when they closed, if within {100 * HOLD_REACH_M:.0f} cm of them; "
-             "on a mesh the tracker "
-             "builds anew, bound again the same way) and where its fingers are (`RGBDFrame.held_vertices`), and the "
-             "empty workspace seen before the cloth "
-             "was there (the tracker's background). Every run starts from the true mask of the cloth as seen in "
+             "on a mesh the tracker builds anew, bound again the same way) and where its fingers are "
+             "(`RGBDFrame.held_vertices`), and the empty workspace seen before the cloth was there (the tracker's "
+             "background). Every run starts from the true mask of the cloth as seen in "
              "its first frame. Presets: `default` (`TrackerConfig()`), `realtime` (`TrackerConfig.realtime()`), "
              "`no-stretch` (the defaults without the stretch term, `lambda_l` = 0).", "",
              "Columns, pooled over the seeds: error = material-point error, mean / 95th percentile in mm (means "
