@@ -13,6 +13,7 @@ from grasping._adjacent import AdjacentCornersResult, adjacent_corners
 from grasping._hanging import lowest_point_grasp
 from grasping._outline import find_corners
 from grasping._planner import GraspPlanner, GraspPlannerConfig, GraspResult, GraspTerms, plan_grasps
+from grasping._visibility import depth_agrees
 
 __all__ = ["AdjacentCornersResult", "GraspPlanner", "GraspPlannerConfig", "GraspResult", "GraspTerms",
-           "adjacent_corners", "find_corners", "lowest_point_grasp", "plan_grasps"]
+           "adjacent_corners", "depth_agrees", "find_corners", "lowest_point_grasp", "plan_grasps"]

@@ -22,7 +22,8 @@ with each frame as the known occluder. The second corner is chosen by
 
 The record gains ``task``, ``regrasp``, ``first_grasp``, ``second_grasp``, ``unfold``
 (the judgement), ``tracking`` (error during the lift and at the second plan, frames
-tracked, confidence) and a picture strip through the lift.
+tracked, confidence, and by ground truth which true corners adjacent to the held one the
+camera saw then: ``true_adjacent_seen``) and a picture strip through the lift.
 """
 
 from __future__ import annotations
@@ -53,10 +54,10 @@ from sim.laundry.controller import (
     edge_straightness,
     stretchable_corner,
 )
-from sim.laundry.judge import TOLERANCE_M, judge_unfold
+from sim.laundry.judge import TOLERANCE_M, judge_unfold, seen_by_camera
 from sim.laundry.pictures import caption, draw_plan, save_png, strip
 from sim.laundry.segment import cloth_seen, mask_from_reference, seen_cloth_points
-from sim.laundry.truth import nearest_corner
+from sim.laundry.truth import nearest_corner, share_an_edge
 from sim.laundry.unfold import TautSensor, arm_for, lift_target, second_fingertip, stretch_targets
 
 log = logging.getLogger(__name__)
@@ -287,6 +288,7 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
     tracking.keep("second plan")
     tracking.plans["second plan"] = second_plan
     record["tracking"] = _tracking_record(tracking, scene, lift_seqs, plan_seq)
+    record["tracking"]["true_adjacent_seen"] = _true_adjacent_seen(scene, tracking.frames["last"], first.grasped_uv)
     if second_plan is None:
         record["failure"] = details.get("reason", "no second grasp")
         return
@@ -356,6 +358,18 @@ def _grasp_record(closing, scene) -> dict:
     return {"held": True, "uv": [round(float(v), 4) for v in closing.grasped_uv],
             "nearest_corner": scene.spec.corner_names[k], "corner_error_m": round(error, 4),
             "at_corner": error <= TOLERANCE_M}
+
+
+def _true_adjacent_seen(scene, frame, first_uv) -> dict:
+    """Ground truth at the second plan: for each true corner sharing an edge with the one the
+    first gripper holds (``sim.laundry.truth.CORNER_EDGES``), whether the camera saw it in
+    ``frame`` (``seen_by_camera``), by corner name. Says whether a corner the robot declined
+    to grasp blind was hidden, or in sight while the estimate put it elsewhere."""
+    held, _ = nearest_corner(np.asarray(first_uv), scene.spec.corners_uv)
+    kind, names = scene.spec.cloth_kind, scene.spec.corner_names
+    others = [k for k in range(len(names)) if k != held and share_an_edge(kind, held, k)]
+    corners_cam = scene.cloth_vertices_cam()[scene.corner_vertices()[others]]
+    return {names[k]: bool(seen) for k, seen in zip(others, seen_by_camera(corners_cam, frame))}
 
 
 def _tracking_record(tracking: _Tracking, scene, lift_seqs: list[int], plan_seq: int, errors: bool = True) -> dict:

@@ -13,10 +13,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ipc.messages import GraspPlan
+from grasping import depth_agrees
+from ipc.messages import GraspPlan, RGBDFrame
+from perception.geometry import pixel_index, project
 from sim.laundry.truth import distance_to_segments, nearest_corner, share_an_edge
 
 log = logging.getLogger(__name__)
+
+#: A true point counts as seen (``seen_by_camera``) when some measured depth within this
+#: many pixels of its own pixel lies within ``SEEN_TOLERANCE_M`` of it: the sensor's noise
+#: and a point on a cloth's very edge, where half the window is background.
+SEEN_WINDOW_PX = 2
+SEEN_TOLERANCE_M = 0.015
 
 #: A grasp counts as a corner (boundary) grasp when its material point is at most this
 #: far from a true corner (the true outline), metres.
@@ -142,3 +150,23 @@ def judge_unfold(cloth_kind: str, first_uv, second_uv, held_apart_m: float, lift
     if not lifted_clear:
         reasons.append("not clear of the table")
     return UnfoldJudgement(not reasons, k1, k2, e1, e2, adjacent, stretch, "; ".join(reasons))
+
+
+def seen_by_camera(points_cam: np.ndarray, frame: RGBDFrame, tol_m: float = SEEN_TOLERANCE_M,
+                   window_px: int = SEEN_WINDOW_PX) -> np.ndarray:
+    """(K,) bool: which true points (K, 3), metres in ``frame``'s camera frame, the camera saw.
+
+    Seen: inside the image, off the frame's known occluder (the robot's hands), and some
+    measured depth around the pixel agrees with the point (``grasping.depth_agrees``); a
+    point behind another layer of cloth, or behind a hand, has only nearer depth around it.
+    Judges what the robot could have grasped in sight, e.g. whether a corner it declined to
+    grasp blind was truly hidden.
+    """
+    points = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
+    uv = project(points, frame.camera.K, frame.camera.D)
+    seen = depth_agrees(points, frame.depth_m, uv, tol_m, window_px)
+    if frame.occluder_mask is not None:
+        height, width = frame.depth_m.shape
+        cols, rows, inside = pixel_index(uv, width, height)
+        seen[inside] &= ~frame.occluder_mask[rows[inside], cols[inside]].astype(bool)
+    return seen

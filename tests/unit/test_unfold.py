@@ -9,11 +9,11 @@ from scipy.spatial.transform import Rotation
 from grasping import GraspPlanner, adjacent_corners
 from ipc.messages import MeshEstimate
 from launch_scripts.trial_runner.unfold import no_adjacent_corner
-from perception.geometry import look_at
+from perception.geometry import look_at, project
 from sim.grasp_execution import move_grippers
 from sim.laundry import LaundryScene, laundry_spec
 from sim.laundry.controller import MIN_CORNER_VISIBLE, MIN_EDGE_STRAIGHTNESS, edge_straightness, stretchable_corner
-from sim.laundry.judge import MIN_STRETCH, TOLERANCE_M, judge_unfold
+from sim.laundry.judge import MIN_STRETCH, TOLERANCE_M, judge_unfold, seen_by_camera
 from sim.laundry.truth import rectangle_corners_uv, share_an_edge
 from sim.laundry.unfold import TautSensor, UnfoldConfig, arm_for, lift_target, shoulders, stretch_targets
 from tests.unit.test_grasp_adjacent import polygon_corner_of, towel_estimate, tshirt_estimate
@@ -226,6 +226,36 @@ def test_a_robot_hand_is_drawn_and_its_mask_sent_as_the_known_occluder():
         assert not (mask & scene.cloth_mask()).any()
         scene.reset()
         assert scene.hands == [] and scene.render().occluder_mask is None
+
+
+def test_the_camera_sees_a_true_corner_in_view_not_one_under_a_hand_or_behind_the_cloth():
+    spec = laundry_spec(2, view="room", state="flat")
+    with LaundryScene(spec, noise=False, known_occluders=True) as scene:
+        corners_cam = scene.cloth_vertices_cam()[scene.corner_vertices()]
+        assert seen_by_camera(corners_cam, scene.render()).all()  # a flat towel: every corner in view
+        # the same points 5 cm behind the surface the camera sees there: under another layer
+        behind = corners_cam * (1.0 + 0.05 / corners_cam[:, 2:])
+        assert not seen_by_camera(behind, scene.render()).any()
+        # the robot's hand over corner 0 (its known mask) hides it, whatever the depth there
+        frame = scene.render()
+        u, v = np.rint(project(corners_cam[0][None], frame.camera.K)[0]).astype(int)
+        hand = np.zeros(frame.depth_m.shape, bool)
+        hand[v - 3:v + 4, u - 3:u + 4] = True
+        seen = seen_by_camera(corners_cam, dataclasses.replace(frame, occluder_mask=hand))
+        assert not seen[0] and seen[1:].all()
+
+
+def test_the_report_counts_corners_declined_blind_that_were_in_sight():
+    from launch_scripts.trial_runner.report import markdown, report
+
+    blind = "adjacent corner not seen (visibility 0.00 < 0.25): not grasped blind"
+    records = [{**_unfold_record(seed, "adjacent", False, 50.0), "failure": blind} for seed in (0, 2, 4)]
+    records[0]["tracking"]["true_adjacent_seen"] = {"top_right": False, "bottom_left": True}
+    records[1]["tracking"]["true_adjacent_seen"] = {"top_right": False, "bottom_left": False}
+    records.append({**_unfold_record(6, "adjacent", False, 50.0), "tracking": {"true_adjacent_seen": {"a": True}}})
+    rep = report(records, "python -m launch_scripts.trials --task unfold", {"kind": "corner"})
+    assert rep["summary"]["by_regrasp"]["adjacent"]["not_grasped_blind"] == {"trials": 3, "true_adjacent_corner_in_sight": 1}
+    assert "| 3 (1) |" in markdown(rep)
 
 
 def _unfold_record(seed, regrasp, success, lift_mean):
