@@ -34,6 +34,7 @@ from grasping._planner import (
     _inside_workspace,
     _outline_candidates,
 )
+from grasping._tip import measured_tip
 from grasping._visibility import depth_agrees
 from ipc.messages import AdjacentCorner, MeshEstimate, RGBDFrame
 from perception.geometry import project
@@ -144,27 +145,44 @@ def _outline_length_m(outline: Outline, canonical: np.ndarray, start: int, end: 
     return float(np.sum(np.linalg.norm(np.diff(points, axis=0), axis=1)))
 
 
-def _visible_fraction(estimate: MeshEstimate, model: _CanonicalModel, vid: np.ndarray, config: GraspPlannerConfig,
-                      frame: RGBDFrame | None) -> tuple[np.ndarray, bool]:
-    """(K,) float64 in [0, 1]: the part of the material around each corner that was seen, and
-    whether anything was known (per-vertex flags or a frame).
+def _seen_around(estimate: MeshEstimate, model: _CanonicalModel, vid: np.ndarray, config: GraspPlannerConfig,
+                 frame: RGBDFrame | None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Which material around each corner was seen: (near (K, N) bool, seen (N,) bool), or
+    (near, None) when nothing is known (no per-vertex flags, no frame).
 
     Around a corner means the vertices within ``config.opening_width_m`` of it along the
     canonical mesh: the cloth the open fingers straddle. A vertex counts as seen when the
     estimate flags it visible (if it carries flags) and, with a frame, the measured depth
-    around its pixel agrees with it (the planner's visibility test). With neither, 1.
+    around its pixel agrees with it (the planner's visibility test).
     """
-    known = estimate.visible is not None or frame is not None
-    if not known:
-        return np.ones(len(vid)), False
     near = np.isfinite(dijkstra(model.graph, directed=False, indices=vid, limit=config.opening_width_m))
+    if estimate.visible is None and frame is None:
+        return near, None
     seen = np.ones(len(estimate.vertices), bool) if estimate.visible is None else estimate.visible.copy()
     if frame is not None:
         around = np.flatnonzero(near.any(axis=0))
         points = estimate.vertices[around]
         uv = project(points, frame.camera.K, frame.camera.D)
         seen[around] &= depth_agrees(points, frame.depth_m, uv, config.visibility_tol_m, config.visibility_window_px)
-    return np.array([seen[around_corner].mean() for around_corner in near]), True
+    return near, seen
+
+
+def _at_measured_tips(estimate: MeshEstimate, vid: np.ndarray, positions: np.ndarray, inward: np.ndarray,
+                      near: np.ndarray, seen: np.ndarray, config: GraspPlannerConfig, frame: RGBDFrame) -> np.ndarray:
+    """(K, 3) corner grasp positions moved to the tip of the measured surface where the frame
+    shows one within ``config.tip_search_radius_m`` (``grasping._tip.measured_tip``, seeded
+    by the seen material around each corner), ``config.pinch_inset_m`` inside it as every
+    corner grasp; unchanged elsewhere."""
+    placed = positions.copy()
+    for k, corner in enumerate(vid):
+        seeds = estimate.vertices[near[k] & seen]
+        tip = measured_tip(frame, estimate.vertices[corner], -inward[k], seeds, config.tip_search_radius_m,
+                           config.tip_max_step_m)
+        if tip is not None:
+            log.debug("adjacent corner %d placed at the measured tip, %.3f m from the estimate's", corner,
+                      float(np.linalg.norm(tip - estimate.vertices[corner])))
+            placed[k] = tip + config.pinch_inset_m * inward[k]
+    return placed
 
 
 def _none(held_vertex: int, held_outline_vertex: int, reason: str) -> AdjacentCornersResult:
@@ -207,8 +225,12 @@ def _adjacent_on_model(estimate: MeshEstimate, model: _CanonicalModel, config: G
     approach, closing = found.approach[keep], found.closing[keep]
     sides, distance_m = sides[keep], distance_m[keep]
 
+    near, seen = _seen_around(estimate, model, vid, config, frame)
+    visibility_known = seen is not None
+    visible = np.array([seen[around].mean() for around in near]) if visibility_known else np.ones(len(vid))
+    if frame is not None and config.tip_search_radius_m > 0:
+        positions = _at_measured_tips(estimate, vid, positions, found.inward[keep], near, seen, config, frame)
     reachable = _inside_workspace(positions, config)
-    visible, visibility_known = _visible_fraction(estimate, model, vid, config, frame)
     clearance = _clearance_term(_clearance(estimate, model.graph, vid, config), config)
     score = config.weight_clearance * clearance + config.weight_confidence * float(estimate.confidence)
     total_weight = config.weight_clearance + config.weight_confidence
@@ -242,7 +264,9 @@ def adjacent_corners(estimate: MeshEstimate, held_vertex: int, config: GraspPlan
     corner itself (a corner within ``HELD_CORNER_FRACTION`` of the loop's chord half-length
     of the held point). Which corners these are depends on the canonical mesh only; each is
     then placed on the estimate exactly as ``plan_grasps`` places a corner grasp (position
-    ``pinch_inset_m`` inside the outline, approach and closing by ``edge_approach``).
+    ``pinch_inset_m`` inside the outline, approach and closing by ``edge_approach``); with
+    a frame and ``config.tip_search_radius_m`` > 0, at the tip of the measured surface
+    beyond it where the frame shows one within that radius (``grasping._tip``).
 
     Each candidate is scored by the weighted mean (``config``'s weights) of its clearance
     from other layers, the estimate's confidence and, when anything is known of it, its
@@ -268,7 +292,7 @@ def adjacent_corners(estimate: MeshEstimate, held_vertex: int, config: GraspPlan
     metres, unit ``approach``, ``quat_xyzw`` of ``R_cam_gripper`` as for every plan,
     ``score`` in [0, 1]), with ``side`` (+1 forward along the outline's order, -1 backward),
     ``material_distance_m`` (arc length of the canonical outline from the held point,
-    metres), ``visible`` in [0, 1] (``_visible_fraction``: 1 when no flags and no frame) and
+    metres), ``visible`` in [0, 1] (``_seen_around``: 1 when no flags and no frame) and
     ``reachable``. Empty with a one-line ``reason`` when the mesh has no boundary, the
     estimate is lost or below ``min_confidence``, or the held point's outline loop has no
     other corner.

@@ -107,6 +107,12 @@ class GraspPlannerConfig:
     corner_max_angle_rad : float in (0, pi), largest interior angle of a corner
     outline_window_spacings : float > 0, half-length, in grid spacings, of the
         chords that measure the outline's turn and direction
+    tip_search_radius_m : float >= 0, adjacent corners only, with a frame: a corner is
+        placed at the tip of the measured surface that continues the estimate's corner
+        outward, when one lies within this distance of it (``grasping._tip``); 0 (the
+        default) places it on the estimate alone
+    tip_max_step_m : float > 0, the largest depth step between neighbouring pixels of
+        one measured surface in that search
     """
 
     kind: str = "corner"
@@ -132,6 +138,8 @@ class GraspPlannerConfig:
     boundary_spacing_m: float = 0.05
     corner_max_angle_rad: float = DEFAULT_CORNER_MAX_ANGLE_RAD
     outline_window_spacings: float = DEFAULT_WINDOW_SPACINGS
+    tip_search_radius_m: float = 0.0
+    tip_max_step_m: float = 0.02
 
     def __post_init__(self):
         if self.kind not in GraspPlan.KINDS:
@@ -155,9 +163,10 @@ class GraspPlannerConfig:
         set_(self, "workspace_min_world", lower)
         set_(self, "workspace_max_world", upper)
         for name in ("visibility_tol_m", "clearance_radius_m", "opening_width_m", "boundary_spacing_m", "outline_window_spacings",
-                     "layer_thickness_m", "max_support_gap_m"):
+                     "layer_thickness_m", "max_support_gap_m", "tip_max_step_m"):
             set_(self, name, check_positive(name, getattr(self, name)))
-        for name in ("weight_visibility", "weight_clearance", "weight_confidence", "weight_single_layer", "pinch_inset_m"):
+        for name in ("weight_visibility", "weight_clearance", "weight_confidence", "weight_single_layer", "pinch_inset_m",
+                     "tip_search_radius_m"):
             set_(self, name, check_positive(name, getattr(self, name), allow_zero=True))
         if self.weight_clearance + self.weight_confidence <= 0:
             raise ValueError("Expected weight_clearance + weight_confidence > 0, got 0 "

@@ -100,6 +100,13 @@ def build_parser() -> argparse.ArgumentParser:
                         "--weight-single-layer 0 turns this off)")
     p.add_argument("--weight-single-layer", type=finite_float, default=defaults.weight_single_layer,
                    help=f"weight of that term in the score (default {defaults.weight_single_layer:g})")
+    p.add_argument("--tip-search-radius-m", type=finite_float, default=defaults.tip_search_radius_m,
+                   help="adjacent corners, when the frame is received (--frames): place each at the tip of the "
+                        "measured surface beyond the estimate's corner when one lies within this distance, metres "
+                        f"(default {defaults.tip_search_radius_m:g}: on the estimate alone)")
+    p.add_argument("--tip-max-step-m", type=finite_float, default=defaults.tip_max_step_m,
+                   help="largest depth step between neighbouring pixels of one surface in that search, metres "
+                        f"(default {defaults.tip_max_step_m:g})")
     add_print_endpoints_argument(p, '{"planner": ENDPOINT}')
     add_log_level_argument(p, default="INFO")
     add_security_arguments(p)
@@ -112,7 +119,8 @@ def config_from_args(args) -> GraspPlannerConfig:
           "min_confidence": args.min_confidence, "opening_width_m": args.opening_width_m,
           "outline_window_spacings": args.outline_window_spacings,
           "corner_max_angle_rad": math.radians(args.corner_max_angle_deg),
-          "layer_thickness_m": args.layer_thickness_m, "weight_single_layer": args.weight_single_layer}
+          "layer_thickness_m": args.layer_thickness_m, "weight_single_layer": args.weight_single_layer,
+          "tip_search_radius_m": args.tip_search_radius_m, "tip_max_step_m": args.tip_max_step_m}
     if args.T_world_cam is not None:
         kw["T_world_cam"] = np.asarray(args.T_world_cam, dtype=np.float64).reshape(4, 4)
     if args.up is not None:
@@ -128,7 +136,8 @@ def config_from_args(args) -> GraspPlannerConfig:
 #: GraspPlannerConfig keeps its default in the service.
 OPTION_FIELDS = ("edge_approach", "pinch_inset_m", "T_world_cam", "workspace_min_world", "workspace_max_world",
                  "up_world", "min_score", "min_confidence", "opening_width_m", "outline_window_spacings",
-                 "corner_max_angle_rad", "layer_thickness_m", "weight_single_layer")
+                 "corner_max_angle_rad", "layer_thickness_m", "weight_single_layer", "tip_search_radius_m",
+                 "tip_max_step_m")
 
 
 def arguments_from_config(config: GraspPlannerConfig) -> list[str]:
@@ -161,7 +170,9 @@ def arguments_from_config(config: GraspPlannerConfig) -> list[str]:
                           ("--outline-window-spacings", config.outline_window_spacings),
                           ("--corner-max-angle-deg", math.degrees(config.corner_max_angle_rad)),
                           ("--layer-thickness-m", config.layer_thickness_m),
-                          ("--weight-single-layer", config.weight_single_layer)):
+                          ("--weight-single-layer", config.weight_single_layer),
+                          ("--tip-search-radius-m", config.tip_search_radius_m),
+                          ("--tip-max-step-m", config.tip_max_step_m)):
         argv += [option, *numbers(value)]
     return argv
 

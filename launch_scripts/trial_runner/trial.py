@@ -88,9 +88,11 @@ TRIAL_TRACKER = TrackerConfig(spacing_m=0.015, use_boundary=False, features="klt
 #: be trusted there (``python benchmarks/lift_tracking.py`` measures both).
 UNFOLD_TRACKER = dataclasses.replace(TRIAL_TRACKER, reacquire_every=0, depth_residual="plane", lambda_o=0.3)
 #: The planner in trials: no inset, since the canonical corner vertex is already inside
-#: the cloth by up to a grid spacing (the inset would add a centimetre of error). Each
+#: the cloth by up to a grid spacing (the inset would add a centimetre of error). An
+#: adjacent corner goes to the tip of the measured surface within 10 cm beyond the
+#: tracked one (the unfold task's second grasp; the corner task asks for none). Each
 #: trial adds its scene's camera pose and the robot's workspace (``planner_config``).
-TRIAL_PLANNER = GraspPlannerConfig(pinch_inset_m=0.0)
+TRIAL_PLANNER = GraspPlannerConfig(pinch_inset_m=0.0, tip_search_radius_m=0.10)
 #: The services a trial starts, as modules run with ``python -m``.
 SERVICES = {"perception": "launch_scripts.perception_service", "planner": "launch_scripts.planner_service"}
 #: The trial tasks: grasp one corner and lift (``corner``), or unfold by two adjacent

@@ -35,7 +35,7 @@ def test_the_planner_options_give_the_service_the_trial_planner():
     config = GraspPlannerConfig(pinch_inset_m=0.0, T_world_cam=look_at([0.2, -1.1, 1.9], [0.0, 0.0, 0.74]),
                                 up_world=np.array([0.0, 0.0, 1.0]), workspace_min_world=[-0.8, -0.6, 0.7123456789],
                                 workspace_max_world=[0.8, 0.6, 2.25], corner_max_angle_rad=math.radians(120.0),
-                                min_score=0.1)
+                                min_score=0.1, tip_search_radius_m=0.1, tip_max_step_m=0.03)
     served = config_from_args(build_parser().parse_args(arguments_from_config(config)))
     for f in dataclasses.fields(GraspPlannerConfig):
         assert np.array_equal(getattr(served, f.name), getattr(config, f.name)), f.name
