@@ -2,7 +2,7 @@
 
     python -m launch_scripts.trials --seeds S [S ...] --json REPORT.json [--task corner|unfold]
         [--regrasp adjacent|lowest|redetect ...] [--kind corner|boundary|highest] [--state STATE]
-        [--cloth KIND] [--workers N] [--engine local|ray] [--ray-address ADDRESS] [--pictures DIR]
+        [--cloth KIND] [--arm drawn|panda] [--workers N] [--engine local|ray] [--ray-address ADDRESS] [--pictures DIR]
         [--markdown SUMMARY.md] [--frames N] [--log-dir DIR] [--quiet]
 
 Each seed is one trial (``launch_scripts.trial_runner.trial.run_trial``): a towel or
@@ -15,7 +15,9 @@ initial state (flat, crumpled, folded, held) or the cloth kind (towel, tshirt) o
 seed; the rest of each scene is still drawn from its seed. ``--task unfold`` runs the
 unfold task instead (``trial_runner.unfold``: one arm lifts the cloth by a corner while
 every frame is tracked, a second takes an adjacent corner, the edge is stretched), once
-per ``--regrasp`` choice of the second corner, reported side by side.
+per ``--regrasp`` choice of the second corner, reported side by side; with ``--arm panda``
+a Franka Panda carries each of its grippers (``sim.panda``), and a motion its arm cannot
+reach is the trial's failure, "unreachable: ...".
 
 Trials run in local processes, one per trial, ``--workers`` at a time (default 1; each
 trial also runs two service processes; a trial whose process dies is recorded as
@@ -67,6 +69,7 @@ from launch_scripts.trial_runner.trial import (
 )
 from launch_scripts.trial_runner.unfold import REGRASPS
 from sim.laundry import CLOTH_KINDS, INITIAL_STATES
+from sim.laundry.scene import ARMS
 
 log = logging.getLogger("launch_scripts.trials")
 
@@ -105,6 +108,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="force this initial state in every scene (default: drawn from the seed)")
     p.add_argument("--cloth", choices=CLOTH_KINDS,
                    help="force this cloth kind in every scene (default: drawn from the seed)")
+    p.add_argument("--arm", choices=ARMS, default="drawn",
+                   help="the unfold task's robot arms: drawn links to a shoulder (default) or a Franka Panda "
+                        "for each gripper, whose inverse kinematics carries it and whose reach is checked")
     p.add_argument("--workers", type=positive_int, default=1, help="trials run at once (default 1)")
     p.add_argument("--engine", choices=("local", "ray"),
                    help="local processes (default), or Ray (needs ray): a local instance, or the cluster of --ray-address")
@@ -436,11 +442,13 @@ def main(argv: list[str] | None = None) -> int:
     scene_options = {k: v for k, v in (("state", args.state), ("cloth_kind", args.cloth)) if v is not None}
     if args.task == "unfold" and args.kind != "corner":
         parser.error("--task unfold grasps corners: --kind must be corner")
+    if args.arm != "drawn" and args.task != "unfold":
+        parser.error(f"--arm {args.arm}: only the unfold task's robot has arms")
     unfold = args.task == "unfold"
     configs = [TrialConfig(task=args.task, regrasp=regrasp, kind=args.kind, observe_frames=args.frames,
                            log_dir=str(log_dir),
                            pictures_dir=None if args.pictures is None else str(args.pictures),
-                           scene_options=scene_options)
+                           scene_options=scene_options, arm=args.arm)
                for regrasp in (dict.fromkeys(args.regrasp) if unfold else ["adjacent"])]
     command = "python -m launch_scripts.trials " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
 

@@ -128,6 +128,8 @@ class TrialConfig:
     plan_timeout_s : longest wait for a plan on the newest estimate
     request_timeout_s : per-attempt timeout of a control or planner request
     scene_options : passed to ``sim.laundry.laundry_spec`` (e.g. ``{"state": "flat"}``)
+    arm : the unfold task's robot arms (``sim.laundry.scene.ARMS``): "drawn" (default) or
+        "panda", a Franka Panda for each gripper, its reach checked before each motion
     """
 
     task: str = "corner"
@@ -146,14 +148,20 @@ class TrialConfig:
     plan_timeout_s: float = 60.0
     request_timeout_s: float = 10.0
     scene_options: dict = field(default_factory=dict)
+    arm: str = "drawn"
 
     def __post_init__(self):
         from launch_scripts.trial_runner.unfold import REGRASPS
+        from sim.laundry.scene import ARMS
 
         if self.task not in TASKS:
             raise ValueError(f"Expected task in {TASKS}, got {self.task!r}")
         if self.regrasp not in REGRASPS:
             raise ValueError(f"Expected regrasp in {REGRASPS}, got {self.regrasp!r}")
+        if self.arm not in ARMS:
+            raise ValueError(f"Expected arm in {ARMS}, got {self.arm!r}")
+        if self.arm != "drawn" and self.task != "unfold":
+            raise ValueError(f"Only the unfold task's robot has arms: expected arm 'drawn' for task {self.task!r}")
         if self.task == "unfold" and self.kind != "corner":
             raise ValueError(f"The unfold task grasps corners: expected kind 'corner', got {self.kind!r}")
         if self.tracker is None:
@@ -345,12 +353,14 @@ def run_trial(seed: int, config: TrialConfig | None = None,
     unfold = config.task == "unfold"
     if unfold:
         record["regrasp"] = config.regrasp
+        record["arm"] = config.arm
     with contextlib.ExitStack() as stack:
         try:
             # the unfold task's camera stands back to see the lifted cloth; the robot knows its own arms
             spec = laundry_spec(seed, view="room" if unfold else "table", **config.scene_options)
             record["scene"] = scene_record(seed, spec=spec)
-            scene = stack.enter_context(LaundryScene(spec, noise=config.noise, known_occluders=unfold))
+            scene = stack.enter_context(LaundryScene(spec, noise=config.noise, known_occluders=unfold,
+                                                                 arm=config.arm))
             log_dir = Path(config.log_dir) / f"seed{seed}" if config.log_dir else Path(
                 stack.enter_context(tempfile.TemporaryDirectory(prefix="clothkit_trial_")))
             children = stack.enter_context(Children(log_dir))

@@ -34,6 +34,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ipc.messages import (
     AdjacentCornersRequest,
@@ -160,7 +161,13 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
     if config.regrasp == "adjacent":
         reply, _ = link.ask(AdjacentCornersRequest(request_id=frame.seq, held_vertex=held_vertex, max_candidates=2),
                             frame.seq, lambda: link.frames_pub.publish(frame))
-        best = stretchable_corner(reply.candidates, estimate.canonical, held_vertex)
+        candidates = reply.candidates
+        if scene.arm != "drawn":  # only corners the second arm can take
+            why = [_second_grasp_out_of_reach(scene, config, c.plan, first_hand.shoulder_world) for c in candidates]
+            if candidates and all(why):
+                return None, None, -1, {"reason": why[0], "n_candidates": len(candidates)}
+            candidates = tuple(c for c, w in zip(candidates, why) if not w)
+        best = stretchable_corner(candidates, estimate.canonical, held_vertex)
         if best is None:
             return None, None, -1, {"reason": no_adjacent_corner(tracking.estimates.get(reply.estimate_seq))}
         if best.visible < MIN_CORNER_VISIBLE:  # nothing seen confirms the estimate's corner
@@ -212,6 +219,63 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
         int(plan.vertex_id), {}
 
 
+def _out_of_reach(scene, shoulder_world, T_world_gripper: np.ndarray, what: str) -> str | None:
+    """The failure to record when the arm mounted at ``shoulder_world`` cannot bring its
+    gripper to the pose ``T_world_gripper`` (4, 4), naming ``what`` was out of reach; None
+    when it can, or when the arms are drawn (``LaundryScene(arm="drawn")``), which reach anywhere."""
+    reach = scene.can_reach(shoulder_world, T_world_gripper)
+    if reach is None or reach.reachable:
+        return None
+    at = ", ".join(f"{v:.2f}" for v in T_world_gripper[:3, 3])
+    return f"unreachable: the arm cannot bring its gripper to {what} at ({at}) m in the world ({reach.describe()})"
+
+
+def _lift_over(scene) -> float | None:
+    """Where the lift ends, in world x: a Panda lifts the cloth to the middle between the two
+    arms, where the other can reach it (``sim.panda``); a drawn arm straight up (None)."""
+    return 0.0 if scene.arm == "panda" else None
+
+
+def _pose(R_world_gripper: np.ndarray, position_world: np.ndarray) -> np.ndarray:
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R_world_gripper, position_world
+    return T
+
+
+def _first_arm(scene, config, plan: GraspPlan, estimate: MeshEstimate) -> tuple[np.ndarray, str | None]:
+    """The shoulder of the arm that takes ``plan`` first, and why it cannot (None when it can:
+    its approach, the grasp and the lift's top). The arm on the corner's side, or the other
+    one when only that one reaches (a Panda cannot point its gripper back at its own base)."""
+    execution, motion, top = config.execution, config.unfold, scene.spec.table_top_z
+    pose = plan_to_world(plan, scene.T_world_cam)
+    fingertip = fingertip_target(pose, float(scene.support_height(pose.position[None, :2])[0]), execution)
+    R = Rotation.from_quat(pose.quat_xyzw).as_matrix()
+    lift = lift_target(fingertip, estimate.canonical, int(plan.vertex_id), top, motion, _lift_over(scene))
+    near = arm_for(fingertip, top, motion, arm=scene.arm)
+    first_why = None
+    for shoulder in (near, arm_for(fingertip, top, motion, taken=near, arm=scene.arm)):
+        why = _out_of_reach(scene, shoulder, _pose(R, fingertip - execution.pregrasp_distance_m * pose.approach),
+                            "the first corner's approach") \
+            or _out_of_reach(scene, shoulder, _pose(R, fingertip), "the first corner") \
+            or _out_of_reach(scene, shoulder, _pose(R, lift), "the lift's top")
+        if why is None:
+            return shoulder, None
+        first_why = first_why or why
+    return near, first_why
+
+
+def _second_grasp_out_of_reach(scene, config, plan: GraspPlan, first_shoulder) -> str | None:
+    """Why the second arm could not take ``plan`` (its approach, the grasp), or None."""
+    execution, motion = config.execution, config.unfold
+    pose = plan_to_world(plan, scene.T_world_cam)
+    fingertip = second_fingertip(pose.position, pose.approach, motion)
+    shoulder = arm_for(fingertip, scene.spec.table_top_z, motion, taken=first_shoulder, arm=scene.arm)
+    R = Rotation.from_quat(pose.quat_xyzw).as_matrix()
+    return _out_of_reach(scene, shoulder, _pose(R, fingertip - execution.pregrasp_distance_m * pose.approach),
+                         "the second corner's approach") \
+        or _out_of_reach(scene, shoulder, _pose(R, fingertip), "the second corner")
+
+
 def run_unfold(scene, link, config, record: dict, observe) -> None:
     """The unfold task (module docstring); fills ``record``.
 
@@ -225,6 +289,12 @@ def run_unfold(scene, link, config, record: dict, observe) -> None:
     reply, planning_ms = link.plan("corner", last, lambda: link.frames_pub.publish(first_frame))
     planned_on = reply.estimate_seq if reply.estimate_seq in estimates else last
     view = View(first_frame, reference, mask_from_reference(first_frame, reference))
+    if scene.arm != "drawn":  # the controller chooses among the corners the first arm can take
+        why = [_first_arm(scene, config, c, estimates[planned_on])[1] for c in reply.candidates]
+        if reply.candidates and all(why):
+            record["failure"] = why[0]
+            return
+        reply = dataclasses.replace(reply, candidates=tuple(c for c, w in zip(reply.candidates, why) if not w))
     plan = default_controller("corner")(reply, scene, view)
     record["timing"] = {"init_ms": round(estimates[min(estimates)].timing_ms, 1), "planning_ms": round(planning_ms, 1)}
     if plan is None:
@@ -251,8 +321,11 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
     pose = plan_to_world(plan, scene.T_world_cam)
     fingertip = fingertip_target(pose, float(scene.support_height(pose.position[None, :2])[0]), execution)
     top = scene.spec.table_top_z
-    hand1 = scene.add_robot_hand(fingertip - execution.pregrasp_distance_m * pose.approach, pose.quat_xyzw,
-                                 arm_for(fingertip, top, motion))
+    shoulder, why = _first_arm(scene, config, plan, planned_on)  # a lowest-point plan was not checked before
+    if why:
+        record["failure"] = why
+        return
+    hand1 = scene.add_robot_hand(fingertip - execution.pregrasp_distance_m * pose.approach, pose.quat_xyzw, shoulder)
     move_grippers(scene, [(hand1.gripper, fingertip, None)], execution.pregrasp_distance_m / execution.approach_speed_m_s,
                   tracking)
     first = close_fingers(scene, hand1.gripper, pose, fingertip, execution)
@@ -270,7 +343,7 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
     # lift, tracked
     tracking.phase = "lift"
     lift_from = tracking.last_seq + 1
-    target = lift_target(fingertip, planned_on.canonical, held_vertex, top, motion)
+    target = lift_target(fingertip, planned_on.canonical, held_vertex, top, motion, _lift_over(scene))
     move_grippers(scene, [(hand1.gripper, target, None)],
                   float(np.linalg.norm(target - hand1.gripper.position)) / motion.lift_speed_m_s, tracking)
     tracking.keep("lifted")
@@ -294,10 +367,14 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
         return
     record["second_grasp"] = {"plan_cam": [round(float(v), 4) for v in second_plan.position],
                               "vertex_id": int(second_plan.vertex_id), **details}
+    why = _second_grasp_out_of_reach(scene, config, second_plan, hand1.shoulder_world)  # the baselines' plans
+    if why:
+        record["failure"] = why
+        return
     pose2 = plan_to_world(second_plan, scene.T_world_cam)
     fingertip2 = second_fingertip(pose2.position, pose2.approach, motion)
     hand2 = scene.add_robot_hand(fingertip2 - execution.pregrasp_distance_m * pose2.approach, pose2.quat_xyzw,
-                                 arm_for(fingertip2, top, motion, taken=hand1.shoulder_world))
+                                 arm_for(fingertip2, top, motion, taken=hand1.shoulder_world, arm=scene.arm))
     tracking.phase = "second approach"
     move_grippers(scene, [(hand2.gripper, fingertip2, None)], execution.pregrasp_distance_m / execution.approach_speed_m_s,
                   tracking)
@@ -314,6 +391,11 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
             distance = float(np.linalg.norm(hand1.gripper.position - hand2.gripper.position))
         t1, t2 = stretch_targets(hand1.gripper.position, hand2.gripper.position, motion.pull_from * distance,
                                  scene.T_world_cam)
+        why = _out_of_reach(scene, hand1.shoulder_world, _pose(hand1.T_world_gripper()[:3, :3], t1), "the stretch") \
+            or _out_of_reach(scene, hand2.shoulder_world, _pose(hand2.T_world_gripper()[:3, :3], t2), "the stretch")
+        if why:
+            record["failure"] = why
+            return
         tracking.phase = "stretch"
         move_grippers(scene, [(hand1.gripper, t1, None), (hand2.gripper, t2, None)], motion.stretch_s, tracking)
         for _ in range(round(motion.pull_pause_s * scene.fps)):  # the swing of that motion is no pull on the edge

@@ -13,12 +13,16 @@ from perception.geometry import boundary_vertices, rotation_about_axis, transfor
 from sim.camera import SOLID_ID, VirtualCamera
 from sim.laundry.spec import HOLDER_HALF_EXTENTS_M, HOLDER_RADIUS_M, TABLE_HALF_XY_M, LaundrySpec, laundry_spec
 from sim.noise import DepthNoiseModel
+from sim.panda import PandaArm, Reach
 from sim.physics import ClothPhysics, Gripper
 from sim.robot_drawing import GripperLook
 from sim.scene import PhysicsScene
-from sim.solids import merge
+from sim.solids import SolidMesh, merge
 
 log = logging.getLogger(__name__)
+
+#: how the robot's arms look (``LaundryScene(arm=...)``)
+ARMS = ("drawn", "panda")
 
 
 @dataclass
@@ -31,12 +35,23 @@ class RobotHand:
     shoulder_world : (3,) float64 metres, where its arm is mounted, or None for a forearm
         straight back from the wrist
     opening_m : distance between the fingers' inner faces as drawn (0 once closed)
+    arm : the Franka Panda that carries it (``sim.panda``), or None for the drawn arm
     """
 
     gripper: Gripper
     look: GripperLook
     shoulder_world: np.ndarray | None
     opening_m: float
+    arm: PandaArm | None = None
+
+    def drawn(self) -> SolidMesh:
+        """The gripper with its wrist and arm as the camera sees them now (world frame): a
+        Panda posed by its inverse kinematics to where the gripper is, or the drawn arm."""
+        T = self.T_world_gripper()
+        if self.arm is None:
+            return self.look.mesh(T, self.opening_m, self.shoulder_world)
+        self.arm.reach(T)
+        return self.arm.mesh(self.opening_m)
 
     def T_world_gripper(self) -> np.ndarray:
         """(4, 4) float64, the gripper frame to world, now."""
@@ -54,6 +69,9 @@ class LaundryScene(PhysicsScene):
     noise_model : DepthNoiseModel, Kinect-like by default
     known_occluders : frames carry the mask of the robot's hands and arms as drawn
         (``RGBDFrame.occluder_mask``), as a robot that knows where its own arms are sends it
+    arm : "drawn" (a gripper, wrist and two links to its shoulder, ``sim.robot_drawing``) or
+        "panda" (a Franka Panda mounted at the shoulder, ``sim.panda``), for every hand
+        added with a shoulder
 
     A ``sim.scene.Scene``. After construction (and ``reset``) the cloth has settled for
     ``spec.settle_s`` (and been brought to rest for ``spec.rest_s``): frame 0. ``step()``
@@ -64,7 +82,10 @@ class LaundryScene(PhysicsScene):
     """
 
     def __init__(self, spec: LaundrySpec, noise: bool = True, noise_model: DepthNoiseModel | None = None,
-                 known_occluders: bool = False):
+                 known_occluders: bool = False, arm: str = "drawn"):
+        if arm not in ARMS:
+            raise ValueError(f"LaundryScene: expected arm in {ARMS}, got {arm!r}")
+        self.arm = arm
         self.spec = spec
         self.known_occluders = bool(known_occluders)
         self.name = f"laundry:{spec.seed}"
@@ -76,6 +97,7 @@ class LaundryScene(PhysicsScene):
             raise ValueError(f"LaundryScene: expected spec.substeps a positive integer, got {spec.substeps!r}")
         self.physics: ClothPhysics | None = None
         self.hands: list[RobotHand] = []
+        self._reach_arms: dict[tuple, PandaArm] = {}  # arms that only check reach, by shoulder
         self.reset()
         log.info("laundry scene %s", spec.describe())
 
@@ -83,7 +105,6 @@ class LaundryScene(PhysicsScene):
         """Build the world from the spec again and let the cloth settle: frame 0, and the same
         frames (noise included) after it as the first time."""
         self.close()
-        self.hands = []
         spec = self.spec
         _, noise_seq = np.random.SeedSequence(spec.seed).spawn(2)
         self._noise_rng = np.random.default_rng(noise_seq)
@@ -126,11 +147,39 @@ class LaundryScene(PhysicsScene):
         """A robot gripper at a world pose (fingertip centre, ``R_world_gripper`` as a quaternion),
         open, drawn with its wrist and its arm reaching to ``shoulder_world`` (3,) metres."""
         look = look if look is not None else GripperLook()
+        shoulder = None if shoulder_world is None else np.asarray(shoulder_world, dtype=np.float64)
+        arm = None
+        if self.arm == "panda" and shoulder is not None:
+            arm = self._panda_at(shoulder)
         gripper = self.physics.add_gripper(position, quat_xyzw)
-        hand = RobotHand(gripper, look, None if shoulder_world is None else np.asarray(shoulder_world, dtype=np.float64),
-                         look.max_opening_m if opening_m is None else float(opening_m))
+        hand = RobotHand(gripper, look, shoulder, look.max_opening_m if opening_m is None else float(opening_m), arm)
         self.hands.append(hand)
         return hand
+
+    def can_reach(self, shoulder_world, T_world_gripper: np.ndarray) -> Reach | None:
+        """How near the arm mounted at ``shoulder_world`` (3,) would bring a gripper to the pose
+        ``T_world_gripper`` (4, 4), without moving any arm: a ``sim.panda.Reach``, or None with
+        drawn arms, which reach anywhere."""
+        if self.arm != "panda":
+            return None
+        shoulder = np.asarray(shoulder_world, dtype=np.float64)
+        key = tuple(np.round(shoulder, 6))
+        if key not in self._reach_arms:
+            self._reach_arms[key] = self._panda_at(shoulder)
+        return self._reach_arms[key].can_reach(T_world_gripper)
+
+    def _panda_at(self, shoulder: np.ndarray) -> PandaArm:
+        over_table = bool(np.all(np.abs(shoulder[:2]) < TABLE_HALF_XY_M))
+        return PandaArm.at_shoulder(shoulder, [0.0, 0.0, self.spec.table_top_z],
+                                    self.spec.table_top_z if over_table else 0.0)
+
+    def close(self) -> None:
+        """Disconnect PyBullet and the arms' own clients (idempotent)."""
+        arms = [h.arm for h in getattr(self, "hands", []) if h.arm is not None]
+        for arm in arms + list(getattr(self, "_reach_arms", {}).values()):
+            arm.close()
+        self.hands, self._reach_arms = [], {}
+        super().close()
 
     def step_coming_to_rest(self) -> None:
         """Advance one frame period while the cloth comes to rest as air drag would bring it
@@ -155,7 +204,7 @@ class LaundryScene(PhysicsScene):
         """The robot's hands and arms as one world-frame SolidMesh, or None without hands."""
         if not self.hands:
             return None
-        return merge([h.look.mesh(h.T_world_gripper(), h.opening_m, h.shoulder_world) for h in self.hands])
+        return merge([h.drawn() for h in self.hands])
 
     def render(self) -> RGBDFrame:
         """The current frame as the sensor sees it (with noise if the scene has it), the
