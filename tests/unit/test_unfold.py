@@ -106,7 +106,8 @@ def test_a_corner_the_camera_did_not_see_is_never_grasped_blind():
         link = SimpleNamespace(ask=lambda request, seq, republish: (SimpleNamespace(candidates=candidates,
                                                                                     estimate_seq=7), 1.0))
         tracking = SimpleNamespace(frames={"last": SimpleNamespace(seq=7)}, estimates={7: est})
-        return _second_plan(None, link, SimpleNamespace(regrasp="adjacent"), tracking, None, held, None)
+        return _second_plan(SimpleNamespace(arm="drawn"), link, SimpleNamespace(regrasp="adjacent"), tracking, None, held,
+                            None)
 
     plan, _, vertex, details = second_plan((unseen, second))
     assert plan is second.plan and vertex == second.plan.vertex_id and details["visible"] == 1.0
