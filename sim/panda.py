@@ -25,14 +25,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import pybullet
-import pybullet_data
 from scipy.spatial.transform import Rotation
 
 from perception.geometry import check_transform, check_vector, transform_points
 from sim.solids import SolidMesh, cylinder, merge
 
-URDF = Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
 #: the link whose frame lies between the fingertips (the URDF's grasp target)
 GRASP_LINK = "panda_grasptarget"
 #: a gripper pose is reachable when the arm's grasp point comes this close to it ...
@@ -77,6 +74,20 @@ class Reach:
         return f"{100 * self.position_error_m:.1f} cm and {np.degrees(self.angle_error_rad):.0f} degrees off"
 
 
+def _pybullet():
+    # imported when an arm is made, as in ``sim.physics``: importing the scenes needs no PyBullet
+    import pybullet
+
+    return pybullet
+
+
+def urdf_path() -> Path:
+    """The Panda model bundled with PyBullet (``pybullet_data``)."""
+    import pybullet_data
+
+    return Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
+
+
 def _worse(a: Reach, b: Reach) -> bool:
     """Whether ``b`` comes nearer its pose than ``a`` (a centimetre weighs as much as 6 degrees)."""
     return b.position_error_m + 0.1 * b.angle_error_rad < a.position_error_m + 0.1 * a.angle_error_rad
@@ -111,14 +122,15 @@ def _read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
 def _link_meshes() -> dict[str, SolidMesh]:
     """Each link's collision mesh in its link frame, coloured, by link name."""
     meshes = {}
-    for link in ElementTree.parse(URDF).getroot().iter("link"):
+    urdf = urdf_path()
+    for link in ElementTree.parse(urdf).getroot().iter("link"):
         collision = link.find("collision")
         if collision is None:
             continue
         mesh = collision.find("geometry/mesh")
         if mesh is None:
             continue
-        points, faces = _read_obj(URDF.parent / mesh.get("filename").replace("package://", ""))
+        points, faces = _read_obj(urdf.parent / mesh.get("filename").replace("package://", ""))
         name = link.get("name")
         colour = HAND_RGB if name in ("panda_hand", "panda_leftfinger", "panda_rightfinger") else LINK_RGB
         meshes[name] = SolidMesh(points, faces, np.tile(np.array(colour, np.uint8), (len(points), 1))) \
@@ -136,9 +148,10 @@ class PandaArm:
     def __init__(self, T_world_base: np.ndarray, stands_on_z: float = 0.0):
         self.T_world_base = check_transform("T_world_base", T_world_base)
         self.stands_on_z = float(stands_on_z)
+        pybullet = self._p = _pybullet()
         self._client = pybullet.connect(pybullet.DIRECT)
         quat = Rotation.from_matrix(self.T_world_base[:3, :3]).as_quat()
-        self._body = pybullet.loadURDF(str(URDF), self.T_world_base[:3, 3].tolist(), quat.tolist(),
+        self._body = pybullet.loadURDF(str(urdf_path()), self.T_world_base[:3, 3].tolist(), quat.tolist(),
                                        useFixedBase=True, physicsClientId=self._client)
         self._links: dict[str, int] = {}
         self._arm_joints: list[int] = []
@@ -172,7 +185,7 @@ class PandaArm:
 
     def close(self) -> None:
         if self._client is not None:
-            pybullet.disconnect(self._client)
+            self._p.disconnect(self._client)
             self._client = None
 
     def __enter__(self) -> PandaArm:
@@ -183,10 +196,10 @@ class PandaArm:
 
     def _set(self, joints: np.ndarray) -> None:
         for j, q in zip(self._arm_joints, joints):
-            pybullet.resetJointState(self._body, j, float(q), physicsClientId=self._client)
+            self._p.resetJointState(self._body, j, float(q), physicsClientId=self._client)
 
     def _link_pose(self, link: int) -> np.ndarray:
-        state = pybullet.getLinkState(self._body, link, computeForwardKinematics=True, physicsClientId=self._client)
+        state = self._p.getLinkState(self._body, link, computeForwardKinematics=True, physicsClientId=self._client)
         T = np.eye(4)
         T[:3, :3] = Rotation.from_quat(state[5]).as_matrix()
         T[:3, 3] = state[4]
@@ -212,7 +225,7 @@ class PandaArm:
         # the returned joints converge where one call stops short.
         for _ in range(6):
             self._set(joints)
-            solution = pybullet.calculateInverseKinematics(
+            solution = self._p.calculateInverseKinematics(
                 self._body, self._grasp, T[:3, 3].tolist(), target.tolist(),
                 lowerLimits=self._lower.tolist(), upperLimits=self._upper.tolist(),
                 jointRanges=(self._upper - self._lower).tolist(), restPoses=list(READY),
@@ -283,7 +296,7 @@ class PandaArm:
         """The arm as posed, its fingers ``opening_m`` apart (0 to 0.08), in the world frame."""
         half = float(np.clip(opening_m, 0.0, 0.08)) / 2.0
         for j in self._finger_joints:
-            pybullet.resetJointState(self._body, j, half, physicsClientId=self._client)
+            self._p.resetJointState(self._body, j, half, physicsClientId=self._client)
         base = self.T_world_base[:3, 3]
         parts = [cylinder(base, [base[0], base[1], self.stands_on_z], PEDESTAL_RADIUS_M, PEDESTAL_RGB)] \
             if base[2] > self.stands_on_z else []
