@@ -359,8 +359,7 @@ def run_trial(seed: int, config: TrialConfig | None = None,
             # the unfold task's camera stands back to see the lifted cloth; the robot knows its own arms
             spec = laundry_spec(seed, view="room" if unfold else "table", **config.scene_options)
             record["scene"] = scene_record(seed, spec=spec)
-            scene = stack.enter_context(LaundryScene(spec, noise=config.noise, known_occluders=unfold,
-                                                                 arm=config.arm))
+            scene = stack.enter_context(LaundryScene(spec, noise=config.noise, known_occluders=unfold, arm=config.arm))
             log_dir = Path(config.log_dir) / f"seed{seed}" if config.log_dir else Path(
                 stack.enter_context(tempfile.TemporaryDirectory(prefix="clothkit_trial_")))
             children = stack.enter_context(Children(log_dir))

@@ -15,7 +15,9 @@ scene (``sim.scenes.HANDLED_SCENES``). Per frame it keeps:
 
 "Wrong" means a frame's mean vertex error exceeds ``WRONG_MM`` (30 mm); a wrong frame whose
 confidence is at least ``CONFIDENT`` (0.5) is a confident wrong estimate, the defect a robot
-cannot guard against. The occluded area ratio of a run is area-weighted over its frames; its
+cannot guard against. Issue 11 asks that a wrong estimate be flagged lost within
+``LOST_WITHIN`` (3) frames: a wrong frame not flagged lost that comes after that many wrong
+frames in a row breaks it (``wrong_unflagged_late_frames``). The occluded area ratio of a run is area-weighted over its frames; its
 worst frame is taken among frames whose hidden faces make up at least ``WORST_AREA_MIN``
 (2 %) of the mesh's canonical area, as one or two hidden faces say little.
 """
@@ -41,6 +43,8 @@ log = logging.getLogger(__name__)
 WRONG_MM = 30.0
 #: A wrong frame with at least this confidence is a confident wrong estimate.
 CONFIDENT = 0.5
+#: A wrong estimate should be flagged lost within this many frames of going wrong.
+LOST_WITHIN = 3
 #: Frames whose hidden faces hold at least this fraction of the canonical mesh's area count
 #: towards the worst occluded area ratio.
 WORST_AREA_MIN = 0.02
@@ -89,6 +93,16 @@ class HandledScore:
         """(T,) bool, frames whose mean error exceeds ``WRONG_MM``."""
         return self.frame_mean_mm() > WRONG_MM
 
+    def wrong_unflagged_late(self) -> np.ndarray:
+        """(T,) bool, wrong frames not flagged lost after ``LOST_WITHIN`` wrong frames in a row."""
+        wrong = self.wrong()
+        late = np.zeros(len(wrong), bool)
+        streak = 0  # wrong frames in a row before this one
+        for i, w in enumerate(wrong):
+            late[i] = bool(w) and streak >= LOST_WITHIN and not bool(self.lost[i])
+            streak = streak + 1 if w else 0
+        return late
+
     def summary(self, frames: np.ndarray | None = None) -> dict:
         """Scores over all frames, or over the frame indices ``frames`` (int array)."""
         idx = np.arange(self.n_frames) if frames is None else np.asarray(frames, dtype=np.int64)
@@ -119,6 +133,7 @@ class HandledScore:
             "lost_frames": int(self.lost[idx].sum()),
             "wrong_frames": int(wrong.sum()),
             "wrong_confident_frames": int((wrong & confident).sum()),
+            "wrong_unflagged_late_frames": int(self.wrong_unflagged_late()[idx].sum()),
             "hidden_shown_visible": (float(self.shown_hidden[idx][known_visibility].sum() /
                                            max(n_hidden[known_visibility].sum(), 1))
                                      if known_visibility.any() else None),

@@ -145,7 +145,8 @@ class LaundryScene(PhysicsScene):
     def add_robot_hand(self, position, quat_xyzw, shoulder_world=None, look: GripperLook | None = None,
                        opening_m: float | None = None) -> RobotHand:
         """A robot gripper at a world pose (fingertip centre, ``R_world_gripper`` as a quaternion),
-        open, drawn with its wrist and its arm reaching to ``shoulder_world`` (3,) metres."""
+        open, drawn with its wrist and its arm reaching to ``shoulder_world`` (3,) metres (with
+        ``arm="panda"``, carried by a Panda whose shoulder is there)."""
         look = look if look is not None else GripperLook()
         shoulder = None if shoulder_world is None else np.asarray(shoulder_world, dtype=np.float64)
         arm = None
@@ -169,6 +170,8 @@ class LaundryScene(PhysicsScene):
         return self._reach_arms[key].can_reach(T_world_gripper)
 
     def _panda_at(self, shoulder: np.ndarray) -> PandaArm:
+        """A Panda with its shoulder at ``shoulder`` (3,), facing the table's middle, on a column
+        from the table top when it stands over the table, else from the floor."""
         over_table = bool(np.all(np.abs(shoulder[:2]) < TABLE_HALF_XY_M))
         return PandaArm.at_shoulder(shoulder, [0.0, 0.0, self.spec.table_top_z],
                                     self.spec.table_top_z if over_table else 0.0)

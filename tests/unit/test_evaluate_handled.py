@@ -20,10 +20,11 @@ def test_bad_options_stop_with_one_line(tmp_path, capsys, args, message):
     assert not (tmp_path / "out").exists()
 
 
-def _summary(mean, frames=10, lost=0, confident_wrong=0, area=None):
+def _summary(mean, frames=10, lost=0, confident_wrong=0, area=None, late=0):
     return {"frames": frames, "mean_mm": mean, "p95_mm": 2 * mean, "occluded_area_ratio": area,
             "occluded_area_ratio_worst": None if area is None else area - 0.1, "lost_frames": lost, "wrong_frames": lost,
-            "wrong_confident_frames": confident_wrong, "median_ms": 20.0, "failure": ""}
+            "wrong_confident_frames": confident_wrong, "wrong_unflagged_late_frames": late, "median_ms": 20.0,
+            "failure": ""}
 
 
 def _seed(scale):
@@ -34,7 +35,7 @@ def _seed(scale):
             "occluder/unknown": {**_summary(6.0 * scale, area=0.5), "even_frames_mean_mm": 5.0 * scale},
             "occluder/known": {**_summary(3.0 * scale, area=0.9), "even_frames_mean_mm": 3.0 * scale},
             "dropped/unknown": _summary(10.0 * scale, frames=5, lost=2, area=0.4),
-            "dropped/known": _summary(3.0 * scale, frames=5, confident_wrong=1, area=0.9),
+            "dropped/known": _summary(3.0 * scale, frames=5, confident_wrong=1, area=0.9, late=1),
             "occluder/robot": {**_summary(2.5 * scale, area=1.0), "even_frames_mean_mm": 2.0 * scale},
             "dropped/robot": _summary(3.0 * scale, frames=5, area=0.95),
         }
@@ -53,6 +54,7 @@ def test_rows_pool_seeds_and_take_each_ratio_against_its_reference():
     assert dropped["to_full_rate"] == pytest.approx([2.0, 2.0]) and dropped["to_twin"] == pytest.approx([5.0, 5.0])
     assert dropped["lost_frames"] == 4 and dropped["frames"] == 10
     assert by_key["dropped", "known", "default"]["wrong_confident_frames"] == 2
+    assert by_key["dropped", "known", "default"]["wrong_unflagged_late_frames"] == 2
     robot = by_key["dropped", "robot", "default"]
     assert robot["to_full_rate"] == pytest.approx([1.5, 1.5]) and robot["area_ratio"] == pytest.approx(0.95)
 
@@ -61,7 +63,8 @@ def test_the_handled_section_leaves_the_paper_table_alone(tmp_path):
     results = {"table_lift": {"0": _seed(1.0)}}
     text = markdown(results, [0], (True,))
     assert text.startswith(HANDLED_BEGIN) and text.endswith(HANDLED_END)
-    assert "| table_lift | dropped | unknown | default | 10.0 / 20.0 | 5.00 | 2.00 | 0.40 (0.30) | 2/5 | 0/5 |" in text
+    assert "| table_lift | dropped | unknown | default | 10.0 / 20.0 | 5.00 | 2.00 | 0.40 (0.30) | 2/5 | 0/5 | 0/5 |" in text
+    assert "| table_lift | dropped | known | default | 3.0 / 6.0 | 1.50 | 1.00 | 0.90 (0.80) | 0/5 | 1/5 | 1/5 |" in text
     path = tmp_path / "results.md"
     paper = f"# Measured results\n\n{BEGIN}\npaper table\n{END}\n\n## Trials\n\nkept\n"
     path.write_text(paper)

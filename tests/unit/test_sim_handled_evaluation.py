@@ -89,6 +89,26 @@ def test_confident_wrong_frames_and_lost_flags_are_counted():
     assert even["frames"] == 2 and even["mean_mm"] == pytest.approx((WRONG_MM + 10) / 2)
 
 
+def test_a_wrong_estimate_not_flagged_lost_within_three_frames_is_counted_from_the_fourth():
+    from sim.evaluation.handled import LOST_WITHIN, HandledScore
+
+    # frames: right, then wrong for 6 frames (flagged lost from the 5th of them), right, wrong again for 4
+    wrong = [0, 1, 1, 1, 1, 1, 1, 0, 1, 1, 1, 1]
+    lost = [0, 0, 0, 0, 0, 1, 1, 0, 0, 0, 0, 0]
+    n = len(wrong)
+    score = HandledScore(errors_mm=[np.full(5, (WRONG_MM + 10) if w else 1.0) for w in wrong],
+                         hidden=[np.zeros(5, bool)] * n, area_ratio=np.full(n, np.nan), hidden_area_m2=np.zeros(n),
+                         mesh_area_m2=np.ones(n), confidence=np.full(n, 0.9), lost=np.array(lost, bool),
+                         timing_ms=np.ones(n), shown_hidden=np.full(n, -1))
+    assert LOST_WITHIN == 3
+    # the 4th wrong frame of the first run (index 4) is the only one not flagged in time there;
+    # in the second run the 4th wrong frame (index 11)
+    np.testing.assert_array_equal(np.flatnonzero(score.wrong_unflagged_late()), [4, 11])
+    summary = score.summary()
+    assert summary["wrong_unflagged_late_frames"] == 2 and summary["wrong_confident_frames"] == 10
+    assert score.summary(np.arange(0, 8))["wrong_unflagged_late_frames"] == 1
+
+
 def test_a_rebuilt_mesh_is_bound_again_where_it_changes():
     rec, mesh = _recording()
     small = rectangle_cloth(0.3, 0.2, spacing_m=0.05)
