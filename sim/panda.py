@@ -13,13 +13,14 @@ arm's grasp point came: a pose is reachable when it is within ``POSITION_TOLERAN
 ``ANGLE_TOLERANCE_RAD``. The Panda's fingers close along its hand's y axis, so its grasp
 frame is the gripper frame turned a quarter turn about z.
 
-``PandaArm.mesh(opening_m)`` is the arm as posed, standing on a column from the floor, its
-links drawn from the model's collision meshes (about 3,500 triangles) in the world frame.
+``PandaArm.mesh(opening_m)`` is the arm as posed, standing on a column (from the floor or a
+table top), its links drawn from the model's collision meshes (about 3,500 triangles) in the world frame.
 """
 
 from __future__ import annotations
 
 import functools
+import itertools
 import xml.etree.ElementTree as ElementTree
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,7 +42,7 @@ READY = (0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785)
 #: a solve afresh starts from each of these (the first joint turned towards the target) until
 #: one converges: ready, reaching out and low, folded in close and low
 STARTS = (READY, (0.0, 0.4, 0.0, -1.6, 0.0, 2.2, 0.785), (0.0, -0.2, 0.0, -2.8, 0.0, 2.8, 0.785))
-#: shoulder (joint 2) above the base: a mount placed so reaches the drawn arm's shoulder
+#: the shoulder (joint 2) above the base: ``PandaArm.at_shoulder`` mounts the base this far below it
 SHOULDER_HEIGHT_M = 0.333
 #: the Panda's colours: white links, a dark grey hand and fingers
 LINK_RGB = (232, 232, 235)
@@ -88,9 +89,10 @@ def urdf_path() -> Path:
     return Path(pybullet_data.getDataPath()) / "franka_panda" / "panda.urdf"
 
 
-def _worse(a: Reach, b: Reach) -> bool:
-    """Whether ``b`` comes nearer its pose than ``a`` (a centimetre weighs as much as 6 degrees)."""
-    return b.position_error_m + 0.1 * b.angle_error_rad < a.position_error_m + 0.1 * a.angle_error_rad
+def _better(reach: Reach, than: Reach | None) -> bool:
+    """Whether ``reach`` comes nearer its pose than ``than`` (a centimetre weighs as much as 6 degrees)."""
+    return than is None or reach.position_error_m + 0.1 * reach.angle_error_rad \
+        < than.position_error_m + 0.1 * than.angle_error_rad
 
 
 def _origin(element) -> np.ndarray:
@@ -184,6 +186,7 @@ class PandaArm:
         return cls(T, stands_on_z)
 
     def close(self) -> None:
+        """Disconnect the arm's PyBullet client (idempotent)."""
         if self._client is not None:
             self._p.disconnect(self._client)
             self._client = None
@@ -233,7 +236,7 @@ class PandaArm:
             joints = np.clip(np.asarray(solution[:len(self._arm_joints)]), self._lower, self._upper)
             self._set(joints)
             reach = Reach(joints, *self._error(T))
-            if best is None or _worse(best, reach):
+            if _better(reach, best):
                 best = reach
             if reach.position_error_m < 1e-3 and reach.angle_error_rad < 1e-2:
                 break
@@ -256,16 +259,12 @@ class PandaArm:
             turn = np.clip(np.arctan2(towards[1], towards[0]), self._lower[0], self._upper[0])
             starts = [np.array([turn, *pose[1:]]) for pose in STARTS]
         best = None
-        for joints in starts:
-            for pose in (T, flipped):
-                reach = self._solve_from(pose, joints)
-                if best is None or _worse(best, reach):
-                    best = reach
-                if best.position_error_m < 2e-3 and best.angle_error_rad < 2e-2:
-                    break
-            else:
-                continue
-            break
+        for joints, pose in itertools.product(starts, (T, flipped)):
+            reach = self._solve_from(pose, joints)
+            if _better(reach, best):
+                best = reach
+            if best.position_error_m < 2e-3 and best.angle_error_rad < 2e-2:
+                break
         self._set(best.joints)
         self.joints = best.joints
         return best
@@ -276,7 +275,7 @@ class PandaArm:
         reach = self.solve(T_world_gripper, self.joints)
         if not reach.reachable:  # a far start can leave the solver on a poor branch
             fresh = self.solve(T_world_gripper)
-            if _worse(fresh, reach):
+            if _better(reach, fresh):
                 self._set(reach.joints)
                 self.joints = reach.joints
                 return reach

@@ -15,11 +15,11 @@ scene (``sim.scenes.HANDLED_SCENES``). Per frame it keeps:
 
 "Wrong" means a frame's mean vertex error exceeds ``WRONG_MM`` (30 mm); a wrong frame whose
 confidence is at least ``CONFIDENT`` (0.5) is a confident wrong estimate, the defect a robot
-cannot guard against. Issue 11 asks that a wrong estimate be flagged lost within
-``LOST_WITHIN`` (3) frames: a wrong frame not flagged lost that comes after that many wrong
-frames in a row breaks it (``wrong_unflagged_late_frames``). The occluded area ratio of a run is area-weighted over its frames; its
-worst frame is taken among frames whose hidden faces make up at least ``WORST_AREA_MIN``
-(2 %) of the mesh's canonical area, as one or two hidden faces say little.
+cannot guard against. A wrong estimate should be flagged lost within ``LOST_WITHIN`` (3)
+frames: a wrong frame not flagged lost after that many wrong frames in a row is late
+(``wrong_unflagged_late_frames``). The occluded area ratio of a run is area-weighted over its
+frames; its worst frame is taken among frames whose hidden faces make up at least
+``WORST_AREA_MIN`` (2 %) of the mesh's canonical area, as one or two hidden faces say little.
 """
 
 from __future__ import annotations
