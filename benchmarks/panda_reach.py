@@ -22,17 +22,12 @@ from scipy.spatial.transform import Rotation
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
+from perception.geometry import rigid_transform  # noqa: E402
 from sim.laundry.unfold import UnfoldConfig, shoulders  # noqa: E402
 from sim.panda import PandaArm  # noqa: E402
 
 TABLE_TOP_M = 0.7665
 DOWN = np.column_stack([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])
-
-
-def _pose(R: np.ndarray, position) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, position
-    return T
 
 
 def poses(n: int, rng: np.random.Generator) -> dict[str, list[np.ndarray]]:
@@ -46,14 +41,14 @@ def poses(n: int, rng: np.random.Generator) -> dict[str, list[np.ndarray]]:
 
     out: dict[str, list[np.ndarray]] = {"grasp on the table": [], "top of the lift": [], "second grasp in the air": []}
     for _ in range(n):
-        out["grasp on the table"].append(_pose(pointing_down(), near_half(0.0, 0.12)))
-        out["top of the lift"].append(_pose(pointing_down(), near_half(0.75, 0.95)))
+        out["grasp on the table"].append(rigid_transform(pointing_down(), near_half(0.0, 0.12)))
+        out["top of the lift"].append(rigid_transform(pointing_down(), near_half(0.75, 0.95)))
         yaw = rng.uniform(-np.pi, np.pi)
         z = np.array([np.cos(yaw), np.sin(yaw), rng.uniform(-0.3, 0.3)])
         z /= np.linalg.norm(z)
         x = np.cross(z, [0.0, 0.0, 1.0])
         x /= np.linalg.norm(x)
-        out["second grasp in the air"].append(_pose(np.column_stack([x, np.cross(z, x), z]),
+        out["second grasp in the air"].append(rigid_transform(np.column_stack([x, np.cross(z, x), z]),
                                                     [rng.uniform(-0.35, 0.1), rng.uniform(-0.2, 0.2),
                                                      TABLE_TOP_M + rng.uniform(0.3, 0.8)]))
     return out

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from perception.geometry import check_transform, check_vector, transform_points
+from perception.geometry import check_transform, check_vector, rigid_transform, transform_points
 from sim.solids import SolidMesh, cylinder, merge
 
 #: the link whose frame lies between the fingertips (the URDF's grasp target)
@@ -97,12 +97,11 @@ def _better(reach: Reach, than: Reach | None) -> bool:
 
 def _origin(element) -> np.ndarray:
     """(4, 4) the transform of a URDF ``<origin>`` child of ``element`` (identity without one)."""
-    T = np.eye(4)
     origin = element.find("origin")
-    if origin is not None:
-        T[:3, :3] = Rotation.from_euler("xyz", [float(v) for v in origin.get("rpy", "0 0 0").split()]).as_matrix()
-        T[:3, 3] = [float(v) for v in origin.get("xyz", "0 0 0").split()]
-    return T
+    if origin is None:
+        return np.eye(4)
+    return rigid_transform(Rotation.from_euler("xyz", [float(v) for v in origin.get("rpy", "0 0 0").split()]).as_matrix(),
+                           [float(v) for v in origin.get("xyz", "0 0 0").split()])
 
 
 def _read_obj(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -180,10 +179,8 @@ class PandaArm:
         column standing at height ``stands_on_z`` (the floor, or a table top)."""
         shoulder = check_vector("shoulder_world", shoulder_world)
         towards = check_vector("facing_world", facing_world) - shoulder
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_euler("z", float(np.arctan2(towards[1], towards[0]))).as_matrix()
-        T[:3, 3] = shoulder - [0.0, 0.0, SHOULDER_HEIGHT_M]
-        return cls(T, stands_on_z)
+        return cls(rigid_transform(Rotation.from_euler("z", float(np.arctan2(towards[1], towards[0]))).as_matrix(),
+                                   shoulder - [0.0, 0.0, SHOULDER_HEIGHT_M]), stands_on_z)
 
     def close(self) -> None:
         """Disconnect the arm's PyBullet client (idempotent)."""
@@ -203,10 +200,7 @@ class PandaArm:
 
     def _link_pose(self, link: int) -> np.ndarray:
         state = self._p.getLinkState(self._body, link, computeForwardKinematics=True, physicsClientId=self._client)
-        T = np.eye(4)
-        T[:3, :3] = Rotation.from_quat(state[5]).as_matrix()
-        T[:3, 3] = state[4]
-        return T
+        return rigid_transform(Rotation.from_quat(state[5]).as_matrix(), state[4])
 
     def grasp_pose(self) -> np.ndarray:
         """(4, 4) where the arm's grasp frame is now, in the gripper convention (module docstring)."""

@@ -34,7 +34,6 @@ import math
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ipc.messages import (
     AdjacentCornersRequest,
@@ -44,7 +43,7 @@ from ipc.messages import (
     StatusReply,
     StatusRequest,
 )
-from perception.geometry import invert_transform, transform_points
+from perception.geometry import invert_transform, rigid_transform, transform_points
 from perception.hanging import HangingCue
 from sim.grasp_execution import close_fingers, fingertip_target, move_grippers, plan_to_world, pull_apart
 from sim.ground_truth import error_summary, vertex_errors
@@ -236,12 +235,6 @@ def _lift_over(scene) -> float | None:
     return 0.0 if scene.arm == "panda" else None
 
 
-def _pose(R_world_gripper: np.ndarray, position_world: np.ndarray) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R_world_gripper, position_world
-    return T
-
-
 def _first_arm(scene, config, plan: GraspPlan, estimate: MeshEstimate) -> tuple[np.ndarray, str | None]:
     """The shoulder of the arm that takes ``plan`` first, and why it cannot (None when it can:
     its approach, the grasp and the lift's top). The arm on the corner's side, or the other
@@ -249,15 +242,15 @@ def _first_arm(scene, config, plan: GraspPlan, estimate: MeshEstimate) -> tuple[
     execution, motion, top = config.execution, config.unfold, scene.spec.table_top_z
     pose = plan_to_world(plan, scene.T_world_cam)
     fingertip = fingertip_target(pose, float(scene.support_height(pose.position[None, :2])[0]), execution)
-    R = Rotation.from_quat(pose.quat_xyzw).as_matrix()
+    R = pose.R
     lift = lift_target(fingertip, estimate.canonical, int(plan.vertex_id), top, motion, _lift_over(scene))
     near = arm_for(fingertip, top, motion, arm=scene.arm)
     first_why = None
     for shoulder in (near, arm_for(fingertip, top, motion, taken=near, arm=scene.arm)):
-        why = _out_of_reach(scene, shoulder, _pose(R, fingertip - execution.pregrasp_distance_m * pose.approach),
+        why = _out_of_reach(scene, shoulder, rigid_transform(R, fingertip - execution.pregrasp_distance_m * pose.approach),
                             "the first corner's approach") \
-            or _out_of_reach(scene, shoulder, _pose(R, fingertip), "the first corner") \
-            or _out_of_reach(scene, shoulder, _pose(R, lift), "the lift's top")
+            or _out_of_reach(scene, shoulder, rigid_transform(R, fingertip), "the first corner") \
+            or _out_of_reach(scene, shoulder, rigid_transform(R, lift), "the lift's top")
         if why is None:
             return shoulder, None
         first_why = first_why or why
@@ -270,10 +263,10 @@ def _second_grasp_out_of_reach(scene, config, plan: GraspPlan, first_shoulder) -
     pose = plan_to_world(plan, scene.T_world_cam)
     fingertip = second_fingertip(pose.position, pose.approach, motion)
     shoulder = arm_for(fingertip, scene.spec.table_top_z, motion, taken=first_shoulder, arm=scene.arm)
-    R = Rotation.from_quat(pose.quat_xyzw).as_matrix()
-    return _out_of_reach(scene, shoulder, _pose(R, fingertip - execution.pregrasp_distance_m * pose.approach),
+    R = pose.R
+    return _out_of_reach(scene, shoulder, rigid_transform(R, fingertip - execution.pregrasp_distance_m * pose.approach),
                          "the second corner's approach") \
-        or _out_of_reach(scene, shoulder, _pose(R, fingertip), "the second corner")
+        or _out_of_reach(scene, shoulder, rigid_transform(R, fingertip), "the second corner")
 
 
 def run_unfold(scene, link, config, record: dict, observe) -> None:
@@ -391,8 +384,8 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
             distance = float(np.linalg.norm(hand1.gripper.position - hand2.gripper.position))
         t1, t2 = stretch_targets(hand1.gripper.position, hand2.gripper.position, motion.pull_from * distance,
                                  scene.T_world_cam)
-        why = _out_of_reach(scene, hand1.shoulder_world, _pose(hand1.T_world_gripper()[:3, :3], t1), "the stretch") \
-            or _out_of_reach(scene, hand2.shoulder_world, _pose(hand2.T_world_gripper()[:3, :3], t2), "the stretch")
+        why = _out_of_reach(scene, hand1.shoulder_world, rigid_transform(hand1.T_world_gripper()[:3, :3], t1), "the stretch") \
+            or _out_of_reach(scene, hand2.shoulder_world, rigid_transform(hand2.T_world_gripper()[:3, :3], t2), "the stretch")
         if why:
             record["failure"] = why
             return

@@ -52,6 +52,7 @@ from perception.geometry._transforms import (
     invert_transform,
     look_at,
     quaternion_xyzw_from_matrix,
+    rigid_transform,
     rotation_about_axis,
     transform_points,
 )
@@ -79,6 +80,7 @@ __all__ = [
     "pixel_index",
     "project",
     "quaternion_xyzw_from_matrix",
+    "rigid_transform",
     "ray_lengths",
     "rays",
     "rotation_about_axis",

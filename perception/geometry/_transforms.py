@@ -24,6 +24,13 @@ def transform_points(T_a_b: np.ndarray, points_b: np.ndarray) -> np.ndarray:
     return p @ T[:3, :3].T + T[:3, 3]
 
 
+def rigid_transform(R_a_b, t_a_b) -> np.ndarray:
+    """``T_a_b`` (4, 4) float64 of a rotation ``R_a_b`` (3, 3) and a translation ``t_a_b`` (3,)."""
+    T = np.eye(4)
+    T[:3, :3], T[:3, 3] = R_a_b, t_a_b
+    return T
+
+
 def invert_transform(T_a_b: np.ndarray) -> np.ndarray:
     """``T_b_a`` (4, 4) float64 of a rigid (4, 4) transform ``T_a_b``."""
     T = check_transform("T_a_b", T_a_b)

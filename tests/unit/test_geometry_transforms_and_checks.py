@@ -15,21 +15,21 @@ from perception.geometry import (
     invert_transform,
     look_at,
     quaternion_xyzw_from_matrix,
+    rigid_transform,
     rotation_about_axis,
     transform_points,
 )
 
 
 def rigid(seed=0):
-    T = np.eye(4)
-    T[:3, :3] = Rotation.random(random_state=seed).as_matrix()
-    T[:3, 3] = [0.3, -1.2, 2.0]
-    return T
+    return rigid_transform(Rotation.random(random_state=seed).as_matrix(), [0.3, -1.2, 2.0])
 
 
 def test_transform_and_its_inverse_round_trip():
     T = rigid()
     p = np.random.default_rng(1).normal(size=(7, 3))
+    np.testing.assert_allclose(transform_points(T, p), p @ T[:3, :3].T + [0.3, -1.2, 2.0], atol=1e-12)
+    assert T.shape == (4, 4) and np.array_equal(T[3], [0.0, 0.0, 0.0, 1.0])
     np.testing.assert_allclose(transform_points(invert_transform(T), transform_points(T, p)), p, atol=1e-12)
     np.testing.assert_allclose(invert_transform(T) @ T, np.eye(4), atol=1e-12)
     assert transform_points(T, np.zeros((0, 3))).shape == (0, 3)

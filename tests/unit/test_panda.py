@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from perception.geometry import rigid_transform
 from sim.panda import ANGLE_TOLERANCE_RAD, POSITION_TOLERANCE_M, PandaArm
 
 #: a gripper pointing straight down, fingers closing along world x
@@ -14,9 +15,7 @@ SHOULDER = np.array([-0.55, 0.0, 1.3])
 
 
 def _pose(position, R=DOWN) -> np.ndarray:
-    T = np.eye(4)
-    T[:3, :3], T[:3, 3] = R, position
-    return T
+    return rigid_transform(R, position)
 
 
 @pytest.fixture(scope="module")
