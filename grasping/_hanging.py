@@ -16,14 +16,17 @@ Output: a ``GraspPlan`` of kind "corner" in the camera frame, following the grip
 convention of ``grasping`` (z = approach, x = closing): the gripper comes up from
 below, its fingers closing across the cloth (along the horizontal part of the cloth's
 normal at the tip), the fingertips ``inset_m`` above the lowest point so that they
-close on cloth.
+close on cloth. A robot arm cannot bring its hand up under a cloth that hangs a few
+centimetres above a table; ``from_the_side`` turns the same grasp to come in horizontally.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ipc.messages import GraspPlan
 from perception.geometry import (
@@ -103,3 +106,39 @@ def lowest_point_grasp(points_cam, T_world_cam, up_world=(0.0, 0.0, 1.0), min_ne
     return GraspPlan(position=tip + inset_m * up_cam, approach=R[0][:, 2], quat_xyzw=quaternion_xyzw_from_matrix(R)[0],
                      opening_width_m=opening_width_m, score=1.0, vertex_id=-1, kind="corner", frame_id=frame_id,
                      timestamp_s=timestamp_s)
+
+
+def from_the_side(plan: GraspPlan, T_world_cam, side: float = 1.0, up_world=(0.0, 0.0, 1.0),
+                  rise_m: float = 0.015, reach_m: float = 0.01) -> GraspPlan:
+    """A lowest-point grasp (``lowest_point_grasp``) turned to approach horizontally.
+
+    The gripper comes in level, along the cloth's plane at the tip (across the closing
+    direction, which stays the tip's normal), so that its fingers straddle the hanging
+    corner from the side: a hand coming up from below would have to pass under a cloth
+    that hangs a few centimetres above the table. The fingertips close ``rise_m`` higher
+    than the plan's (the corner is narrow at its tip; a little higher more of it lies
+    between the pads) and ``reach_m`` past it along the approach.
+
+    plan : the lowest-point GraspPlan, camera frame (approach up, x closing)
+    T_world_cam : (4, 4) float, camera frame to world; up_world : (3,) the world's up
+    side : +1 or -1, which of the two horizontal directions the gripper comes from
+        (+1: along up x closing, -1 the opposite)
+    rise_m, reach_m : float >= 0, metres
+    returns GraspPlan, camera frame, otherwise as ``plan``
+    """
+    if side not in (1, -1, 1.0, -1.0):
+        raise ValueError(f"side: expected +1 or -1, got {side!r}")
+    T = check_transform("T_world_cam", T_world_cam)
+    up_cam = T[:3, :3].T @ check_vector("up_world", up_world, unit=True)
+    for name, value in (("rise_m", rise_m), ("reach_m", reach_m)):
+        if not (np.isfinite(value) and value >= 0):
+            raise ValueError(f"{name}: expected a non-negative number, got {value!r}")
+    closing = Rotation.from_quat(plan.quat_xyzw).as_matrix()[:, 0]
+    closing = closing - (closing @ up_cam) * up_cam
+    if np.linalg.norm(closing) < 1e-9:
+        raise ValueError("from_the_side: the plan closes along the vertical; it has no side to come from")
+    closing /= np.linalg.norm(closing)
+    approach = float(side) * np.cross(up_cam, closing)
+    R = frames_from_z_and_x(approach[None], closing[None])
+    position = plan.position + rise_m * up_cam + reach_m * approach
+    return dataclasses.replace(plan, position=position, approach=R[0][:, 2], quat_xyzw=quaternion_xyzw_from_matrix(R)[0])

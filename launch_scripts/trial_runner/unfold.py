@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from grasping import from_the_side, lowest_point_grasp
 from ipc.messages import (
     AdjacentCornersRequest,
     GraspPlan,
@@ -180,8 +181,6 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
             "straightness": round(edge_straightness(best, estimate.canonical, held_vertex), 3),
             "n_candidates": len(reply.candidates)}
     if config.regrasp == "lowest":
-        from grasping import lowest_point_grasp
-
         points = seen_cloth_points(frame, reference)
         if len(points) < 3:
             return None, None, -1, {"reason": "no cloth seen below the gripper"}
@@ -257,6 +256,15 @@ def _first_arm(scene, config, plan: GraspPlan, estimate: MeshEstimate) -> tuple[
     return near, first_why
 
 
+def _from_a_side_reached(scene, config, plan: GraspPlan, estimate: MeshEstimate) -> GraspPlan:
+    """A lowest-point ``plan`` (a cloth held up, grasped from below) turned to come in from
+    the side an arm reaches (``grasping.from_the_side``): no arm brings its hand up under a
+    cloth hanging a few centimetres above the table. The first side when neither is reached
+    (the reach check that follows says why)."""
+    sides = [from_the_side(plan, scene.T_world_cam, side) for side in (1, -1)]
+    return next((p for p in sides if _first_arm(scene, config, p, estimate)[1] is None), sides[0])
+
+
 def _second_grasp_out_of_reach(scene, config, plan: GraspPlan, first_shoulder) -> str | None:
     """Why the second arm could not take ``plan`` (its approach, the grasp), or None."""
     execution, motion = config.execution, config.unfold
@@ -311,13 +319,15 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
     estimates = tracking.estimates
 
     # first grasp
-    pose = plan_to_world(plan, scene.T_world_cam)
-    fingertip = fingertip_target(pose, float(scene.support_height(pose.position[None, :2])[0]), execution)
     top = scene.spec.table_top_z
+    if scene.arm != "drawn" and plan.vertex_id < 0:
+        plan = tracking.plans["first plan"] = _from_a_side_reached(scene, config, plan, planned_on)
     shoulder, why = _first_arm(scene, config, plan, planned_on)  # a lowest-point plan was not checked before
     if why:
         record["failure"] = why
         return
+    pose = plan_to_world(plan, scene.T_world_cam)
+    fingertip = fingertip_target(pose, float(scene.support_height(pose.position[None, :2])[0]), execution)
     hand1 = scene.add_robot_hand(fingertip - execution.pregrasp_distance_m * pose.approach, pose.quat_xyzw, shoulder)
     move_grippers(scene, [(hand1.gripper, fingertip, None)], execution.pregrasp_distance_m / execution.approach_speed_m_s,
                   tracking)

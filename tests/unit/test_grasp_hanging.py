@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from grasping import lowest_point_grasp
+from grasping import from_the_side, lowest_point_grasp
 
 UP = np.array([0.0, 0.0, 1.0])
 
@@ -96,3 +96,26 @@ def test_bad_input_raises_with_a_clear_message(kwargs, match):
     args = {"points_cam": np.random.default_rng(0).normal(size=(20, 3)) + [0, 0, 2], "T_world_cam": np.eye(4), **kwargs}
     with pytest.raises(ValueError, match=match):
         lowest_point_grasp(**args)
+
+
+@pytest.mark.parametrize("side", [1, -1])
+def test_from_the_side_comes_in_level_along_the_sheet_and_keeps_closing_across_it(side):
+    T = camera_looking_at(np.array([0.0, -1.5, 1.9]), (0.1, 0.2, 1.15))
+    below = lowest_point_grasp(to_cam(T, hanging_triangle()), T, inset_m=0.01)
+    plan = from_the_side(below, T, side=side, rise_m=0.015, reach_m=0.01)
+    axes = gripper_axes_world(plan, T)
+    np.testing.assert_allclose(T[:3, :3] @ plan.approach, axes[:, 2], atol=1e-9)
+    assert abs(axes[:, 2] @ UP) < 1e-9  # level
+    assert abs(abs(axes[:, 2] @ [1.0, 0.0, 0.0]) - 1.0) < 1e-6  # along the sheet (the plane y = 0.2)
+    assert abs(abs(axes[:, 0] @ [0.0, 1.0, 0.0]) - 1.0) < 1e-6  # closing across it, as from below
+    position_world = T[:3, :3] @ plan.position + T[:3, 3]
+    np.testing.assert_allclose(position_world, [0.1, 0.2, 1.025] + 0.01 * axes[:, 2], atol=0.004)
+    other = from_the_side(below, T, side=-side)
+    np.testing.assert_allclose(T[:3, :3] @ other.approach, -axes[:, 2], atol=1e-9)  # the two sides are opposite
+
+
+def test_from_the_side_refuses_a_side_that_is_not_one():
+    T = camera_looking_at(np.array([0.0, -1.5, 1.9]), (0.1, 0.2, 1.15))
+    below = lowest_point_grasp(to_cam(T, hanging_triangle()), T)
+    with pytest.raises(ValueError, match="side"):
+        from_the_side(below, T, side=0)

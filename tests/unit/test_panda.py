@@ -159,3 +159,33 @@ def test_the_first_corner_goes_to_an_arm_that_reaches_it_or_is_refused_as_out_of
         # from under the table, pointing up: no arm gets its hand there
         shoulder, why = _first_arm(scene, config, plan(at, np.eye(3)), estimate)
         assert why is not None and why.startswith("unreachable: the arm cannot bring its gripper to the first corner")
+
+
+def test_a_cloth_held_up_is_grasped_from_the_side_an_arm_reaches_not_from_under_it():
+    from types import SimpleNamespace
+
+    from ipc.messages import GraspPlan
+    from launch_scripts.trial_runner.trial import TrialConfig
+    from launch_scripts.trial_runner.unfold import _first_arm, _from_a_side_reached
+    from perception.geometry import invert_transform, transform_points
+    from sim.laundry import LaundryScene, laundry_spec
+
+    spec = laundry_spec(2, view="room", state="flat")
+    config = TrialConfig(task="unfold", arm="panda")
+    estimate = SimpleNamespace(canonical=np.array([[0.0, 0.0, 0.0], [0.4, 0.0, 0.0]]))
+    with LaundryScene(spec, noise=False, arm="panda") as scene:
+        T_cam_world = invert_transform(scene.T_world_cam)
+        # a lowest-point grasp as grasping.lowest_point_grasp makes it: up from below, closing along y,
+        # 2 cm above the table in its middle (a cloth hanging from the holder)
+        R = T_cam_world[:3, :3] @ np.column_stack([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+        at = [0.02, 0.05, spec.table_top_z + 0.02]
+        below = GraspPlan(position=transform_points(T_cam_world, np.asarray(at)[None])[0], approach=R[:, 2],
+                          quat_xyzw=Rotation.from_matrix(R).as_quat(), opening_width_m=0.04, score=1.0,
+                          vertex_id=-1, kind="corner")
+        assert _first_arm(scene, config, below, estimate)[1] is not None
+        side = _from_a_side_reached(scene, config, below, estimate)
+        assert _first_arm(scene, config, side, estimate)[1] is None
+        approach_world = scene.T_world_cam[:3, :3] @ side.approach
+        assert abs(approach_world[2]) < 1e-9 and abs(approach_world[0]) > 0.999  # level, across the closing (y)
+        position_world = scene.T_world_cam[:3, :3] @ side.position + scene.T_world_cam[:3, 3]
+        assert position_world[2] > at[2] and np.linalg.norm(position_world - at) < 0.025
