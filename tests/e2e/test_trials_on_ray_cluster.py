@@ -144,7 +144,7 @@ def test_two_trials_run_on_the_cluster_and_record_its_node(ray_head, tmp_path):
 
 
 #: A driver that runs four stand-in trials through ``_run_ray``: seed 1's worker dies, seed
-#: 2 raises, the others say where their code came from. (In a process of its own, run as
+#: 2 raises, the others say where their code came from and which process ran them. (In a process of its own, run as
 #: __main__, so that Ray ships the stand-in by value.)
 FAULTY_DRIVER = """
 import json, os, signal, sys
@@ -157,7 +157,7 @@ def trial(seed, config):
         os.kill(os.getpid(), signal.SIGKILL)
     if seed == 2:
         raise RuntimeError("the trial broke")
-    return {"seed": seed, "success": True, "failure": "", "code": launch_scripts.__file__}
+    return {"seed": seed, "success": True, "failure": "", "code": launch_scripts.__file__, "pid": os.getpid()}
 
 config = TrialConfig(log_dir=sys.argv[2], scene_options={"state": "flat"})
 seen = []
@@ -180,6 +180,9 @@ def test_a_dead_worker_or_a_raising_trial_is_a_failed_record_and_the_code_comes_
         assert by_seed[seed]["success"] and by_seed[seed]["node"]["ip"] == ray_head["node_ip"]
         # imported from the packages shipped into the head's folder, not from a checkout
         assert by_seed[seed]["code"].startswith(ray_head["temp_dir"]), by_seed[seed]["code"]
+        assert by_seed[seed]["node"]["pid"] == by_seed[seed]["pid"]
+    # each trial in a worker process of its own, as the local engine runs them
+    assert by_seed[0]["pid"] != by_seed[3]["pid"]
 
 
 def test_an_address_nobody_answers_is_one_line_naming_it(tmp_path):
