@@ -408,7 +408,7 @@ def _run_ray(seeds: list[int], config: TrialConfig, workers: int, progress, addr
         # max_calls=1: a worker process runs one trial and exits, as the local engine's do. A
         # trial run after another in the same process is not the same trial: its cloth's
         # physics drifts apart from a fresh process's within a lift (seed 44 after seed 40:
-        # 0.09 mm at frame 61, then the tracking, and the grasp, differ).
+        # 0.09 mm at the lift's 53rd frame, then the tracking, and the grasp, differ).
         remote = ray.remote(num_cpus=1, max_retries=0, max_calls=1)(_trial_on_ray)
         try:
             while queue or pending:
