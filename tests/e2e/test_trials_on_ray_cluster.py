@@ -144,8 +144,8 @@ def test_two_trials_run_on_the_cluster_and_record_its_node(ray_head, tmp_path):
 
 
 #: A driver that runs four stand-in trials through ``_run_ray``: seed 1's worker dies, seed
-#: 2 raises, the others say where their code came from and which process ran them. (In a process of its own, run as
-#: __main__, so that Ray ships the stand-in by value.)
+#: 2 raises, the others say where their code came from and which process ran them. (In a
+#: process of its own, run as __main__, so that Ray ships the stand-in by value.)
 FAULTY_DRIVER = """
 import json, os, signal, sys
 from launch_scripts.trial_runner import TrialConfig
