@@ -319,7 +319,9 @@ def run_trial(seed: int, config: TrialConfig | None = None,
               choose_plan: Callable[[GraspPlanReply, object, View], GraspPlan | None] | None = None) -> dict:
     """Run one trial (see the module docstring) and return its record.
 
-    seed : int >= 0; the scene, its noise and so the whole trial follow from it
+    seed : int >= 0; the scene, its noise and so the whole trial follow from it, in a
+        fresh process: run after another trial in the same process, the cloth's physics
+        drifts apart within a lift (``launch_scripts.trials`` starts one per trial)
     config : TrialConfig, defaults when None
     choose_plan : (reply, scene, view) -> the GraspPlan to execute, or None for none;
         ``view`` is a ``View`` of the last frame; None for ``default_controller(config.kind)``
