@@ -234,6 +234,14 @@ def _lift_over(scene) -> float | None:
     return 0.0 if scene.arm == "panda" else None
 
 
+def _grasp_out_of_reach(scene, config, shoulder_world, pose, fingertip: np.ndarray, what: str) -> str | None:
+    """Why the arm at ``shoulder_world`` could not take a grasp of ``pose`` (``GraspPose``,
+    world) closing at ``fingertip`` (3,): its approach, then the grasp itself; None when it can."""
+    stand_off = fingertip - config.execution.pregrasp_distance_m * pose.approach
+    return _out_of_reach(scene, shoulder_world, rigid_transform(pose.R, stand_off), f"{what}'s approach") \
+        or _out_of_reach(scene, shoulder_world, rigid_transform(pose.R, fingertip), what)
+
+
 def _first_arm(scene, config, plan: GraspPlan, estimate: MeshEstimate) -> tuple[np.ndarray, str | None]:
     """The shoulder of the arm that takes ``plan`` first, and why it cannot (None when it can:
     its approach, the grasp and the lift's top). The arm on the corner's side, or the other
@@ -241,40 +249,40 @@ def _first_arm(scene, config, plan: GraspPlan, estimate: MeshEstimate) -> tuple[
     execution, motion, top = config.execution, config.unfold, scene.spec.table_top_z
     pose = plan_to_world(plan, scene.T_world_cam)
     fingertip = fingertip_target(pose, float(scene.support_height(pose.position[None, :2])[0]), execution)
-    R = pose.R
     lift = lift_target(fingertip, estimate.canonical, int(plan.vertex_id), top, motion, _lift_over(scene))
     near = arm_for(fingertip, top, motion, arm=scene.arm)
     first_why = None
     for shoulder in (near, arm_for(fingertip, top, motion, taken=near, arm=scene.arm)):
-        why = _out_of_reach(scene, shoulder, rigid_transform(R, fingertip - execution.pregrasp_distance_m * pose.approach),
-                            "the first corner's approach") \
-            or _out_of_reach(scene, shoulder, rigid_transform(R, fingertip), "the first corner") \
-            or _out_of_reach(scene, shoulder, rigid_transform(R, lift), "the lift's top")
+        why = _grasp_out_of_reach(scene, config, shoulder, pose, fingertip, "the first corner") \
+            or _out_of_reach(scene, shoulder, rigid_transform(pose.R, lift), "the lift's top")
         if why is None:
             return shoulder, None
         first_why = first_why or why
     return near, first_why
 
 
-def _from_a_side_reached(scene, config, plan: GraspPlan, estimate: MeshEstimate) -> GraspPlan:
+def _from_a_side_reached(scene, config, plan: GraspPlan,
+                         estimate: MeshEstimate) -> tuple[GraspPlan, np.ndarray, str | None]:
     """A lowest-point ``plan`` (a cloth held up, grasped from below) turned to come in from
     the side an arm reaches (``grasping.from_the_side``): no arm brings its hand up under a
-    cloth hanging a few centimetres above the table. The first side when neither is reached
-    (the reach check that follows says why)."""
-    sides = [from_the_side(plan, scene.T_world_cam, side) for side in (1, -1)]
-    return next((p for p in sides if _first_arm(scene, config, p, estimate)[1] is None), sides[0])
+    cloth hanging a few centimetres above the table. Returns that plan with ``_first_arm``'s
+    answer for it: the first side's, saying why, when neither is reached."""
+    tried = []
+    for side in (1, -1):
+        turned = from_the_side(plan, scene.T_world_cam, side)
+        shoulder, why = _first_arm(scene, config, turned, estimate)
+        if why is None:
+            return turned, shoulder, None
+        tried.append((turned, shoulder, why))
+    return tried[0]
 
 
 def _second_grasp_out_of_reach(scene, config, plan: GraspPlan, first_shoulder) -> str | None:
     """Why the second arm could not take ``plan`` (its approach, the grasp), or None."""
-    execution, motion = config.execution, config.unfold
     pose = plan_to_world(plan, scene.T_world_cam)
-    fingertip = second_fingertip(pose.position, pose.approach, motion)
-    shoulder = arm_for(fingertip, scene.spec.table_top_z, motion, taken=first_shoulder, arm=scene.arm)
-    R = pose.R
-    return _out_of_reach(scene, shoulder, rigid_transform(R, fingertip - execution.pregrasp_distance_m * pose.approach),
-                         "the second corner's approach") \
-        or _out_of_reach(scene, shoulder, rigid_transform(R, fingertip), "the second corner")
+    fingertip = second_fingertip(pose.position, pose.approach, config.unfold)
+    shoulder = arm_for(fingertip, scene.spec.table_top_z, config.unfold, taken=first_shoulder, arm=scene.arm)
+    return _grasp_out_of_reach(scene, config, shoulder, pose, fingertip, "the second corner")
 
 
 def run_unfold(scene, link, config, record: dict, observe) -> None:
@@ -320,9 +328,11 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
 
     # first grasp
     top = scene.spec.table_top_z
-    if scene.arm != "drawn" and plan.vertex_id < 0:
-        plan = tracking.plans["first plan"] = _from_a_side_reached(scene, config, plan, planned_on)
-    shoulder, why = _first_arm(scene, config, plan, planned_on)  # a lowest-point plan was not checked before
+    if scene.arm != "drawn" and plan.vertex_id < 0:  # a lowest-point plan, not checked before
+        plan, shoulder, why = _from_a_side_reached(scene, config, plan, planned_on)
+        tracking.plans["first plan"] = plan
+    else:
+        shoulder, why = _first_arm(scene, config, plan, planned_on)
     if why:
         record["failure"] = why
         return

@@ -183,7 +183,7 @@ def test_a_cloth_held_up_is_grasped_from_the_side_an_arm_reaches_not_from_under_
                           quat_xyzw=Rotation.from_matrix(R).as_quat(), opening_width_m=0.04, score=1.0,
                           vertex_id=-1, kind="corner")
         assert _first_arm(scene, config, below, estimate)[1] is not None
-        side = _from_a_side_reached(scene, config, below, estimate)
+        side, _, _ = _from_a_side_reached(scene, config, below, estimate)
         assert _first_arm(scene, config, side, estimate)[1] is None
         approach_world = scene.T_world_cam[:3, :3] @ side.approach
         assert abs(approach_world[2]) < 1e-9 and abs(approach_world[0]) > 0.999  # level, across the closing (y)
