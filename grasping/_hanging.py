@@ -109,15 +109,18 @@ def lowest_point_grasp(points_cam, T_world_cam, up_world=(0.0, 0.0, 1.0), min_ne
 
 
 def from_the_side(plan: GraspPlan, T_world_cam, side: float = 1.0, up_world=(0.0, 0.0, 1.0),
-                  rise_m: float = 0.015, reach_m: float = 0.01) -> GraspPlan:
+                  rise_m: float = 0.0, reach_m: float = 0.01) -> GraspPlan:
     """A lowest-point grasp (``lowest_point_grasp``) turned to approach horizontally.
 
     The gripper comes in level, along the cloth's plane at the tip (across the closing
     direction, which stays the tip's normal), so that its fingers straddle the hanging
     corner from the side: a hand coming up from below would have to pass under a cloth
     that hangs a few centimetres above the table. The fingertips close ``rise_m`` higher
-    than the plan's (the corner is narrow at its tip; a little higher more of it lies
-    between the pads) and ``reach_m`` past it along the approach.
+    than the plan's and ``reach_m`` past it along the approach. The pads, level now, span
+    the tip's height: closing higher holds more of the narrow corner but takes the cloth
+    farther from its tip. On 4 held development scenes the material point held lay 2.1-5.4
+    cm from a corner closing 1.5 cm higher, 0.8-4.1 cm closing level with the tip and
+    0.7-3.6 cm from below; on 8 more, 1.2-5.0 cm level and 0.8-4.1 cm from below.
 
     plan : the lowest-point GraspPlan, camera frame (approach up, x closing)
     T_world_cam : (4, 4) float, camera frame to world; up_world : (3,) the world's up

@@ -17,9 +17,9 @@ estimate of the previous one arrived (republished with back-off until it does, s
 joiner or a loaded machine only delays the trial); request a plan of the configured
 kind; execute the plan the controller chooses (``sim.laundry.controller``: the planner's
 best; when the robot holds the cloth up, the lowest point of the cloth it sees through a
-full turn) with ``sim.grasp_execution``; judge it (``sim.laundry.judge``). This module
-only orchestrates: the task's logic is ``sim.laundry``'s. Children are stopped on every
-exit path and every wait is bounded.
+full turn, taken from the side: ``grasping.from_the_side``) with ``sim.grasp_execution``;
+judge it (``sim.laundry.judge``). This module only orchestrates: the task's logic is
+``sim.laundry``'s. Children are stopped on every exit path and every wait is bounded.
 
 The record (a JSON-ready dict) holds at least ``seed`` and ``success``; see ``run_trial``.
 """
@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from grasping import GraspPlannerConfig
+from grasping import GraspPlannerConfig, from_the_side
 from ipc.messages import (
     GraspPlan,
     GraspPlanReply,
@@ -463,6 +463,8 @@ def _observe_plan_execute(scene, link: _Link, config: TrialConfig, choose_plan, 
     if plan is None:
         record["failure"] = f"no {config.kind} grasp found on estimate {planned_on}"
         return
+    if plan.vertex_id < 0:  # the lowest point of a cloth held up: no hand comes up under it
+        plan = from_the_side(plan, scene.T_world_cam)
     record["plan"] = {"kind": plan.kind, "position_cam": [round(float(v), 4) for v in plan.position],
                       "approach_cam": [round(float(v), 4) for v in plan.approach], "score": round(plan.score, 4),
                       "vertex_id": plan.vertex_id, "estimate_seq": planned_on,

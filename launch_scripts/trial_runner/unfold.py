@@ -328,7 +328,7 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
 
     # first grasp
     top = scene.spec.table_top_z
-    if scene.arm != "drawn" and plan.vertex_id < 0:  # a lowest-point plan, not checked before
+    if plan.vertex_id < 0:  # a lowest-point plan, not checked before
         plan, shoulder, why = _from_a_side_reached(scene, config, plan, planned_on)
         tracking.plans["first plan"] = plan
     else:

@@ -128,3 +128,25 @@ def test_a_plan_at_a_true_corner_lifts_the_towel_by_that_corner():
         assert result.lifted_clear and result.lowest_clearance_m > 0.1
         # Hanging from the corner: that corner is now the cloth's highest point.
         assert np.argmax(scene.cloth_vertices_world()[:, 2]) in set(result.held_nodes.tolist())
+
+
+@pytest.mark.slow
+def test_a_held_cloth_is_taken_at_its_lowest_point_from_the_side_above_the_table():
+    pytest.importorskip("pybullet")
+    from grasping import from_the_side, lowest_point_grasp
+    from sim.grasp_execution import execute_grasp
+    from sim.laundry import LaundryScene, cloth_points, laundry_spec, mask_from_reference
+
+    with LaundryScene(laundry_spec(6, state="held", cloth_kind="towel"), noise=False) as scene:
+        frame, reference = scene.render(), scene.render_empty()
+        below = lowest_point_grasp(cloth_points(frame, mask_from_reference(frame, reference), reference),
+                                   scene.T_world_cam)
+        top = scene.spec.table_top_z
+        assert plan_to_world(below, scene.T_world_cam).approach[2] > 0.99  # up from under the cloth
+        # From the side the hand comes in level, above the table, and takes the corner hanging lowest.
+        side = from_the_side(below, scene.T_world_cam)
+        pose = plan_to_world(side, scene.T_world_cam)
+        assert abs(pose.approach[2]) < 1e-9 and (pose.position - CONFIG.pregrasp_distance_m * pose.approach)[2] > top
+        result = execute_grasp(scene, side)
+        assert result.failure == "" and result.lifted_clear
+        assert np.linalg.norm(scene.spec.corners_uv - result.grasped_uv, axis=1).min() < 0.03
