@@ -95,6 +95,18 @@ def test_a_grasp_at_the_cloth_centre_is_judged_a_failure(tmp_path):
     np.testing.assert_allclose(record["grasped_uv"], [width / 2, height / 2], atol=0.03)
 
 
+def test_a_cloth_held_up_is_grasped_at_its_lowest_point_from_the_side(tmp_path):
+    config = TrialConfig(observe_frames=3, scene_options={"state": "held", "cloth_kind": "towel"}, log_dir=str(tmp_path))
+    record = run_trial(6, config)
+    assert not record["failure"].startswith("error"), record["failure"]
+    plan = record["plan"]
+    assert plan["vertex_id"] == -1 and plan["chosen_by"] == "lowest_point_when_held"
+    spec = laundry_spec(6, state="held", cloth_kind="towel")
+    approach_world = spec.T_world_cam[:3, :3] @ np.asarray(plan["approach_cam"])
+    assert abs(approach_world[2]) < 1e-3  # level, not up from under the cloth
+    assert record["success"] and record["corner_error_m"] <= TOLERANCE_M
+
+
 def test_one_trial_on_a_local_ray_instance(tmp_path):
     pytest.importorskip("ray")
     # Ray 2.59 and later protect a new local instance with a token, by default one saved to
