@@ -199,6 +199,14 @@ def _refuse_ext(code: int, data: bytes):
     raise ProtocolError(f"msgpack extension type {code} is not allowed")
 
 
+def _readable_request_id(fields) -> int:
+    """The ``request_id`` of a message that failed to decode, when its header's fields hold
+    a valid one (so that the error reply can carry it); else 0."""
+    rid = fields.get("request_id") if isinstance(fields, dict) else None
+    ok = isinstance(rid, int) and not isinstance(rid, bool) and 0 <= rid < 2**63
+    return rid if ok else 0
+
+
 def _unpack_header(header, limits: Limits) -> tuple[Message, dict]:
     try:
         top = msgpack.unpackb(
@@ -213,7 +221,8 @@ def _unpack_header(header, limits: Limits) -> tuple[Message, dict]:
     except ProtocolError:
         raise
     except Exception as e:  # msgpack signals bad input with several exception types
-        raise ProtocolError(_one_line(f"header: not valid msgpack ({type(e).__name__}: {e})")) from None
+        why = f"{type(e).__name__}: {e}" if str(e) else type(e).__name__
+        raise ProtocolError(_one_line(f"header: not valid msgpack ({why})")) from None
     if not isinstance(top, dict) or set(top) != {"type", "version", "fields"}:
         got = sorted(map(str, top)) if isinstance(top, dict) else type(top).__name__
         raise ProtocolError(f"header: expected a map with keys type, version, fields; got {_short(got)}")
@@ -263,6 +272,7 @@ def decode(frames: Sequence, limits: Limits = DEFAULT_LIMITS):
 
     Raises ProtocolError, and only ProtocolError, for any bad input.
     """
+    fields = None
     try:
         views = _views(frames, limits)
         schema, fields = _unpack_header(views[0], limits)
@@ -272,7 +282,8 @@ def decode(frames: Sequence, limits: Limits = DEFAULT_LIMITS):
         if unused:
             raise ProtocolError(f"{schema.cls.__name__}: frame {unused[0]} is not referenced by any array")
         return msg
-    except ProtocolError:
+    except ProtocolError as e:
+        e.request_id = _readable_request_id(fields)
         raise
     except Exception as e:
         # The contract is that bad input never raises anything else; reaching this is a

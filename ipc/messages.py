@@ -45,7 +45,8 @@ def _check_array(name: str, value, shape: tuple, dtype=None, finite: bool = Fals
     """
     arr = np.asarray(value)
     if arr.ndim != len(shape) or any(s is not None and s != a for s, a in zip(shape, arr.shape)):
-        want = "(" + ", ".join("N" if s is None else str(s) for s in shape) + ")"
+        dims = ["N" if s is None else str(s) for s in shape]
+        want = f"({dims[0]},)" if len(dims) == 1 else "(" + ", ".join(dims) + ")"  # as numpy prints a shape
         raise ValueError(f"{name}: expected shape {want}, got {arr.shape}")
     if dtype is not None and arr.dtype != dtype:
         if np.dtype(dtype).kind == "f" and arr.dtype.kind in "fiu":

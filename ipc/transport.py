@@ -439,7 +439,8 @@ class Subscriber:
     ``received`` (messages of any type), ``skipped`` (data messages, decoded and valid,
     replaced by a newer one before ``recv_latest`` took them), ``malformed`` (dropped as
     ProtocolError; logged at most once a second, with how many were not, so that a publisher
-    sending garbage cannot flood the log), ``reconnects`` (connections lost and opened again).
+    sending garbage cannot flood the log), ``reconnects`` (connections lost and opened again);
+    ``last_malformed`` is the last malformed message's error, one line ("" before any).
 
     Connections: libzmq drops a connection whose peer sends a frame larger than the
     message cap (``ZMQ_MAXMSGSIZE``) and, for a connecting socket, never reconnects it
@@ -490,6 +491,7 @@ class Subscriber:
         self._stale = False
         self._beat_after_silence = False  # the next heartbeat is the first after a silence
         self.received = self.skipped = self.malformed = self.reconnects = 0
+        self.last_malformed = ""
         self._warn_malformed = _WarningEvery()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=f"subscriber {endpoint}", daemon=True)
@@ -665,6 +667,7 @@ class Subscriber:
     def _count_malformed(self, error: ProtocolError) -> None:
         with self._cond:
             self.malformed += 1
+            self.last_malformed = _one_line(str(error))
         self._warn_malformed("%s: dropped a malformed message: %s", self.endpoint, error)
 
 
@@ -790,7 +793,7 @@ class ReplyServer:
             request = decode(_recv_message(sock, self.limits), self.limits)
         except ProtocolError as e:
             self._warn_malformed("%s: malformed request: %s", self.endpoint, e)
-            reply = ErrorReply("protocol", str(e))
+            reply = ErrorReply("protocol", str(e), e.request_id)
         else:
             reply = self._handle(request)
         try:

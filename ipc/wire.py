@@ -43,7 +43,12 @@ __all__ = [
 ]
 
 class ProtocolError(ValueError):
-    """A message that breaks the wire protocol; the text is one line naming what was wrong."""
+    """A message that breaks the wire protocol; the text is one line naming what was wrong.
+
+    ``request_id`` : the message's ``request_id`` when ``decode`` could read a valid one
+    from its header despite the error, else 0 (an error reply carries it)."""
+
+    request_id: int = 0
 
 
 @dataclass(frozen=True)

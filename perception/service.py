@@ -96,6 +96,7 @@ class PerceptionService:
         # line each, in order); the loop hands them to the core between frames.
         self._source_events: queue.SimpleQueue = queue.SimpleQueue()
         self._seq_went_back_at = -math.inf  # time.monotonic() of the last frame whose seq went back
+        self._malformed_told = 0  # malformed frame messages before the last InitialiseRequest or ResetRequest
         self._viewer = None
         self._closers = []
         try:
@@ -178,10 +179,12 @@ class PerceptionService:
 
     def _on_initialise(self, request: InitialiseRequest) -> StatusReply:
         self.core.request_initialise(request.mask, request.background)
+        self._malformed_told = self._frames.malformed
         return self.status(request.request_id)
 
     def _on_reset(self, request: ResetRequest) -> StatusReply:
         self.core.request_reset()
+        self._malformed_told = self._frames.malformed
         return self.status(request.request_id)
 
     def _on_set_parameters(self, request: SetParametersRequest) -> StatusReply:
@@ -211,7 +214,7 @@ class PerceptionService:
             tracking_median = np.median(trackings)
         return StatusReply(
             request_id=request_id, state=core.state, frames_processed=core.frames_since_init, last_seq=core.last_seq,
-            parameters=core.parameters(), message=" ".join(core.last_error.split()),
+            parameters=core.parameters(), message=self._message(),
             uptime_s=time.monotonic() - self._started_at, source=source,
             frame_age_s=None if arrived_at is None else time.monotonic() - arrived_at,
             frames_received=counters.frames_taken + frames.skipped, frames_tracked=counters.processed,
@@ -220,6 +223,14 @@ class PerceptionService:
             latency_ms_median=latency_median, latency_ms_p99=latency_p99, tracking_ms_median=tracking_median,
             confidence=core.last_confidence, lost_streak=core.lost_streak,
             reinitialisations=counters.reinitialisations, discontinuities=counters.discontinuities)
+
+    def _message(self) -> str:
+        """StatusReply.message: the core's last error and, when malformed messages arrived on
+        the frames endpoint since the last InitialiseRequest or ResetRequest, why the last was."""
+        parts = [" ".join(self.core.last_error.split())]
+        if self._frames.malformed > self._malformed_told:
+            parts.append(f"last malformed message on the frames endpoint: {self._frames.last_malformed}")
+        return "; ".join(p for p in parts if p)
 
     def close(self) -> None:
         """Close the sockets (and the viewer's recording)."""

@@ -253,6 +253,7 @@ def test_bad_frames_are_counted_and_tracking_goes_on(frames):
             send_and_count([b"\x93 not a message"], lambda r: r.messages_malformed)
             bad = run.status()
             assert bad.message.startswith("frame 2: no valid depth pixel") and bad.frames_rejected == 2
+            assert "; last malformed message on the frames endpoint: header: not valid msgpack" in bad.message
             assert bad.rejected_by_kind == {"camera_changed": 1, "no_depth": 1}
             assert set(bad.rejected_by_kind) <= set(documented_reject_kinds())
             assert bad.frames_tracked == good.frames_tracked and bad.frames_received == good.frames_received + 2

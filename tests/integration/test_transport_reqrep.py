@@ -118,6 +118,13 @@ def test_malformed_requests_are_answered_with_error_replies():
             reply = raw_request(srv.endpoint, frames)
             assert isinstance(reply, m.ErrorReply) and reply.code == "protocol", reply
             assert re.search(match, reply.message), reply.message
+            assert reply.request_id == (5 if frames[0] == good[0] else 0)  # copied when the header could be read
+        # a request whose id can be read gets its error with that id, to match in a client's logs
+        for fields, match in [({"request_id": 5, "bogus": 1}, "bogus"),
+                              ({"request_id": 6, "max_candidates": 0}, "max_candidates")]:
+            header = {**top, "type": "GraspRequest" if "max_candidates" in fields else "StatusRequest", "fields": fields}
+            reply = raw_request(srv.endpoint, [msgpack.packb(header)])
+            assert reply.code == "protocol" and re.search(match, reply.message) and reply.request_id == fields["request_id"]
         reply = raw_request(srv.endpoint, good)
         assert isinstance(reply, m.StatusReply) and reply.request_id == 5
 

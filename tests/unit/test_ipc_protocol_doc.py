@@ -74,3 +74,13 @@ def test_every_field_is_documented(name):
 def test_default_endpoints_are_documented():
     for name in ("FRAMES", "ESTIMATES", "PERCEPTION_CONTROL", "PLANNER"):
         assert f"| `{name}` | `{getattr(endpoints, name)}` |" in DOC
+
+
+def test_every_tracker_parameter_the_service_accepts_is_documented_with_its_default():
+    from perception.parameters import tracker_parameters
+    from perception.tracker import TrackerConfig
+
+    documented = dict(re.findall(r"^\| `(\w+)` \| (?:bool|int|float|str) \| `([^`]*)` \| ", DOC, flags=re.M))
+    accepted = tracker_parameters(TrackerConfig())
+    assert set(documented) == set(accepted)
+    assert all(documented[name] == repr(value).replace("'", '"') for name, value in accepted.items())
