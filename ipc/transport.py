@@ -420,8 +420,8 @@ class Subscriber:
     """SUB socket that connects to a publisher and hands out only the newest message.
 
     endpoint : the publisher's endpoint, e.g. ``ipc.endpoints.FRAMES``
-    accept : message classes to keep, e.g. ``(RGBDFrame,)``; others are dropped. None
-        keeps every type. Heartbeats are always consumed here, never returned.
+    accept : message classes to keep, e.g. ``(RGBDFrame,)``; others are dropped and counted
+        as ``malformed``. None keeps every type. Heartbeats are always consumed here, never returned.
     stale_after_s : seconds without any message (data or heartbeat) after which the
         publisher counts as gone (three heartbeat periods instead, if its heartbeats
         announce a longer period): logged as a warning and ``on_liveness(False, age_s)``
@@ -438,7 +438,7 @@ class Subscriber:
     counted whether or not a newer one replaces it. Counters (ints, read any time):
     ``received`` (messages of any type), ``skipped`` (data messages, decoded and valid,
     replaced by a newer one before ``recv_latest`` took them), ``malformed`` (dropped as
-    ProtocolError; logged at most once a second, with how many were not, so that a publisher
+    ProtocolError, or of a type not in ``accept``; logged at most once a second, with how many were not, so that a publisher
     sending garbage cannot flood the log), ``reconnects`` (connections lost and opened again);
     ``last_malformed`` is the last malformed message's error, one line ("" before any).
 
@@ -620,8 +620,8 @@ class Subscriber:
         try:
             cls = peek_type(frames, self.limits)
             if cls is not Heartbeat and self.accept is not None and cls not in self.accept:
-                log.debug("%s: dropped a %s (not accepted)", self.endpoint, cls.__name__)
-                return
+                served = ", ".join(c.__name__ for c in self.accept)
+                raise ProtocolError(f"a {cls.__name__} is not carried here; expected {served} or Heartbeat")
             msg = decode(frames, self.limits)
         except ProtocolError as e:
             self._count_malformed(e)

@@ -62,9 +62,11 @@ def test_delivery_heartbeats_and_filtering():
         assert wait_until(lambda: sub.last_heartbeat is not None and sub.last_heartbeat.seq >= 2, 2.0)
         assert sub.last_heartbeat.source == "frames" and sub.last_heartbeat.period_s == 0.05
         assert sub.age_s < 1.0 and not sub.stale
-        pub.publish(m.StatusReply())  # not accepted by this subscriber: dropped
+        assert sub.malformed == 0
+        pub.publish(m.StatusReply())  # not accepted by this subscriber: dropped, and counted
         assert sub.recv_latest(timeout_s=0.2) is None
-        assert sub.received >= 3 and sub.malformed == 0
+        assert sub.received >= 3 and sub.malformed == 1
+        assert sub.last_malformed == "a StatusReply is not carried here; expected RGBDFrame or Heartbeat"
 
 
 def test_uint16_depth_publisher():
