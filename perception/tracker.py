@@ -754,8 +754,11 @@ class MeshTracker:
             log.debug("frame %d: object not seen", frame.seq)
             self._V_prev, self._V = self._V, self._V.copy()
             self.last_observation = None
-            state = self._states(self._V, frame)
-            return self._estimate(frame, self._V, {}, 0, None, t0, state == VISIBLE)
+            # Nothing of the object was seen, so the estimate reports no vertex seen; the next
+            # frame's coarse stage still scores its hypotheses on those the camera could see.
+            estimate = self._estimate(frame, self._V, {}, 0, None, t0, np.zeros(len(self._V), bool))
+            self._visible = self._states(self._V, frame) == VISIBLE
+            return estimate
         # Hidden and out-of-view vertices have no data; one without depth may have slid off
         # the object (the boundary term brings it back) or sit on a hole in the depth.
         observed = (state == VISIBLE) | (state == NO_DEPTH)

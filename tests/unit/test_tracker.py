@@ -1,5 +1,7 @@
 """MeshTracker on rendered textured sheets whose true shape is known."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -229,6 +231,17 @@ def test_lost_when_object_disappears(tex):
     empty = RGBDFrame(f0.rgb, np.zeros_like(f0.depth_m), CAM, 0.1, 1)
     e = tr.track(empty)
     assert e.lost and e.confidence == 0.0
+
+
+def test_an_object_gone_from_before_a_wall_has_no_vertex_seen(tex):
+    f0 = render(plane_points(UV, CENTRE, SIZE), tex, 0)
+    tr = MeshTracker(TrackerConfig())
+    tr.initialise(f0)
+    wall = RGBDFrame(np.full_like(f0.rgb, 90), np.full_like(f0.depth_m, 3.0), CAM, 0.1, 1)
+    e = tr.track(wall)  # depth is measured at every vertex's pixel, far behind it: nothing of the cloth
+    assert e.lost and e.confidence == 0.0 and not e.visible.any()
+    back = tr.track(dataclasses.replace(f0, timestamp_s=0.2, seq=2))
+    assert not back.lost and back.visible.mean() > 0.9
 
 
 def test_bad_input_messages(tex):
