@@ -421,7 +421,8 @@ class Subscriber:
 
     endpoint : the publisher's endpoint, e.g. ``ipc.endpoints.FRAMES``
     accept : message classes to keep, e.g. ``(RGBDFrame,)``; others are dropped and counted
-        as ``malformed``. None keeps every type. Heartbeats are always consumed here, never returned.
+        as ``malformed``. None keeps every type. Heartbeats are always consumed here, never
+        returned.
     stale_after_s : seconds without any message (data or heartbeat) after which the
         publisher counts as gone (three heartbeat periods instead, if its heartbeats
         announce a longer period): logged as a warning and ``on_liveness(False, age_s)``
@@ -438,8 +439,9 @@ class Subscriber:
     counted whether or not a newer one replaces it. Counters (ints, read any time):
     ``received`` (messages of any type), ``skipped`` (data messages, decoded and valid,
     replaced by a newer one before ``recv_latest`` took them), ``malformed`` (dropped as
-    ProtocolError, or of a type not in ``accept``; logged at most once a second, with how many were not, so that a publisher
-    sending garbage cannot flood the log), ``reconnects`` (connections lost and opened again);
+    ProtocolError, or of a type not in ``accept``; logged at most once a second, with how
+    many were not, so that a publisher sending garbage cannot flood the log), ``reconnects``
+    (connections lost and opened again);
     ``last_malformed`` is the last malformed message's error, one line ("" before any).
 
     Connections: libzmq drops a connection whose peer sends a frame larger than the
