@@ -1,5 +1,5 @@
 """docs/protocol.md stays in step with the code: the worked example is what the codec
-produces, and every message type, field and default endpoint is documented."""
+produces, and every message type, field, default endpoint and tracker parameter is documented."""
 
 import dataclasses
 import re
@@ -13,6 +13,8 @@ from ipc import endpoints
 from ipc.codec import MESSAGE_TYPES
 from ipc.examples import adjacent_corners_example, worked_example
 from ipc.messages import SCHEMA_VERSION
+from perception.parameters import tracker_parameters
+from perception.tracker import TrackerConfig
 
 DOC = (Path(__file__).resolve().parents[2] / "docs" / "protocol.md").read_text()
 
@@ -77,9 +79,6 @@ def test_default_endpoints_are_documented():
 
 
 def test_every_tracker_parameter_the_service_accepts_is_documented_with_its_default():
-    from perception.parameters import tracker_parameters
-    from perception.tracker import TrackerConfig
-
     documented = dict(re.findall(r"^\| `(\w+)` \| (?:bool|int|float|str) \| `([^`]*)` \| ", DOC, flags=re.M))
     accepted = tracker_parameters(TrackerConfig())
     assert set(documented) == set(accepted)
