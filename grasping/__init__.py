@@ -12,9 +12,10 @@ outline (``adjacent_corners``), to stretch the edge between them.
 
 from grasping._adjacent import AdjacentCornersResult, adjacent_corners
 from grasping._hanging import from_the_side, lowest_point_grasp
-from grasping._outline import find_corners
+from grasping._outline import corner_angles, find_corners
 from grasping._planner import GraspPlanner, GraspPlannerConfig, GraspResult, GraspTerms, plan_grasps
 from grasping._visibility import depth_agrees
 
 __all__ = ["AdjacentCornersResult", "GraspPlanner", "GraspPlannerConfig", "GraspResult", "GraspTerms",
-           "adjacent_corners", "depth_agrees", "find_corners", "from_the_side", "lowest_point_grasp", "plan_grasps"]
+           "adjacent_corners", "corner_angles", "depth_agrees", "find_corners", "from_the_side", "lowest_point_grasp",
+           "plan_grasps"]

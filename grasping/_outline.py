@@ -436,3 +436,19 @@ def find_corners(
         degenerate canonical mesh
     """
     return build_outline(canonical, faces, boundary, max_angle_rad, window_spacings).corner_ids
+
+
+def corner_angles(
+    canonical,
+    faces,
+    boundary,
+    max_angle_rad: float = DEFAULT_CORNER_MAX_ANGLE_RAD,
+    window_spacings: float = DEFAULT_WINDOW_SPACINGS,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The corners of ``find_corners`` (same arguments, same errors) with the interior angle
+    of the smoothed outline at each.
+
+    Returns (C,) int64 vertex ids in outline order and (C,) float64 interior angles, radians.
+    """
+    outline = build_outline(canonical, faces, boundary, max_angle_rad, window_spacings)
+    return outline.corner_ids, outline.interior_angle_rad[outline.corner_rows]

@@ -51,6 +51,7 @@ from sim.ground_truth import error_summary, vertex_errors
 from sim.laundry.controller import (
     MIN_CORNER_VISIBLE,
     View,
+    corner_to_lift_first,
     default_controller,
     edge_straightness,
     stretchable_corner,
@@ -304,7 +305,10 @@ def run_unfold(scene, link, config, record: dict, observe) -> None:
             record["failure"] = why[0]
             return
         reply = dataclasses.replace(reply, candidates=tuple(c for c, w in zip(reply.candidates, why) if not w))
-    plan = default_controller("corner")(reply, scene, view)
+    if scene.holder is None:  # on the table: the corner it hangs facing the camera from
+        plan = corner_to_lift_first(reply.candidates, estimates[planned_on], scene.T_world_cam)
+    else:
+        plan = default_controller("corner")(reply, scene, view)
     record["timing"] = {"init_ms": round(estimates[min(estimates)].timing_ms, 1), "planning_ms": round(planning_ms, 1)}
     if plan is None:
         record["failure"] = f"no corner grasp found on estimate {planned_on}"

@@ -18,6 +18,7 @@ from grasping import (
     GraspResult,
     GraspTerms,
     _planner,
+    corner_angles,
     find_corners,
     plan_grasps,
 )
@@ -175,6 +176,19 @@ def test_find_corners_rotated_rectangle_any_grid_phase(angle_deg):
         which, dist = nearest_polygon_vertex(canonical[corners], polygon)
         assert sorted(which) == [0, 1, 2, 3]
         assert np.all(dist < 2 * S)
+
+
+def test_corner_angles_measure_a_trapezoid_s_corners_at_the_same_vertices_as_find_corners():
+    # a right trapezoid: 60, 90, 90 and 120 degrees at its polygon vertices 0-3
+    polygon = np.array([[0.0, 0.0], [0.5, 0.0], [0.5, 0.4], [0.4 / np.tan(np.radians(60.0)), 0.4]])
+    canonical, faces, boundary = hex_mesh(polygon)
+    ids, angles = corner_angles(canonical, faces, boundary)
+    assert np.array_equal(ids, find_corners(canonical, faces, boundary))
+    which, _ = nearest_polygon_vertex(canonical[ids], polygon)
+    measured = dict(zip(which, np.degrees(angles)))
+    assert sorted(measured) == [0, 1, 2, 3]
+    for k, true in enumerate((60.0, 90.0, 90.0, 120.0)):
+        assert abs(measured[k] - true) < 12.0, (k, measured[k])
 
 
 def test_find_corners_tshirt():

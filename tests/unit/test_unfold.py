@@ -7,16 +7,23 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from grasping import GraspPlanner, adjacent_corners
-from ipc.messages import MeshEstimate
+from ipc.messages import GraspPlan, MeshEstimate
 from launch_scripts.trial_runner.unfold import no_adjacent_corner
-from perception.geometry import look_at, project
+from perception.geometry import look_at, project, transform_points
 from sim.grasp_execution import move_grippers
 from sim.laundry import LaundryScene, laundry_spec
-from sim.laundry.controller import MIN_CORNER_VISIBLE, MIN_EDGE_STRAIGHTNESS, edge_straightness, stretchable_corner
+from sim.laundry.controller import (
+    MIN_CORNER_VISIBLE,
+    MIN_EDGE_STRAIGHTNESS,
+    NEAR_BEST_SCORE,
+    corner_to_lift_first,
+    edge_straightness,
+    stretchable_corner,
+)
 from sim.laundry.judge import MIN_STRETCH, TOLERANCE_M, judge_unfold, seen_by_camera
 from sim.laundry.truth import rectangle_corners_uv, share_an_edge
 from sim.laundry.unfold import TautSensor, UnfoldConfig, arm_for, lift_target, shoulders, stretch_targets
-from tests.unit.test_grasp_adjacent import polygon_corner_of, towel_estimate, tshirt_estimate
+from tests.unit.test_grasp_adjacent import polygon_corner_of, polygon_estimate, towel_estimate, tshirt_estimate
 
 TOWEL, _ = rectangle_corners_uv(0.5, 0.4)
 
@@ -319,3 +326,72 @@ def test_the_lowest_point_baseline_records_why_when_only_specks_of_cloth_are_see
     plan, distance, vertex, details = _second_plan(scene, None, config, tracking, reference, 0, None)
     assert plan is None and vertex == -1
     assert details["reason"].startswith("no lowest point on the cloth seen below the gripper (Expected a cloth")
+
+
+def _on_a_table(estimate: MeshEstimate, T_world_cam: np.ndarray, turn_deg: float) -> MeshEstimate:
+    """``estimate``'s canonical mesh laid flat on a table (z = 0, world), centred on the origin and
+    turned ``turn_deg`` about z, in the camera frame of ``T_world_cam``."""
+    flat = Rotation.from_euler("z", turn_deg, degrees=True).apply(estimate.canonical - estimate.canonical.mean(axis=0))
+    T_cam_world = np.linalg.inv(T_world_cam)
+    return dataclasses.replace(estimate, vertices=flat @ T_cam_world[:3, :3].T + T_cam_world[:3, 3])
+
+
+def _corner_plans(estimate: MeshEstimate, score: float = 1.0) -> tuple:
+    return tuple(GraspPlan(position=estimate.vertices[v], approach=np.array([0.0, 0.0, 1.0]),
+                           quat_xyzw=np.array([0.0, 0.0, 0.0, 1.0]), opening_width_m=0.04, score=score,
+                           vertex_id=int(v), kind="corner")
+                 for v in GraspPlanner().corners(estimate))
+
+
+def _facing(plan: GraspPlan, estimate: MeshEstimate, T_world_cam: np.ndarray) -> float:
+    """Cosine between the camera's horizontal direction to the plan and the plan's to the cloth's centre."""
+    corner, centre = (transform_points(T_world_cam, p) for p in (plan.position[None], estimate.vertices))
+    out, beyond = (corner[0] - T_world_cam[:3, 3])[:2], (centre.mean(axis=0) - corner[0])[:2]
+    return float(out @ beyond / np.linalg.norm(out) / np.linalg.norm(beyond))
+
+
+T_ROOM = look_at([0.0, -1.5, 1.0], [0.0, 0.0, 0.0])  # 1.5 m away along -y, 1 m up, looking at the table's centre
+
+
+def test_a_towel_is_lifted_first_by_a_corner_the_cloth_lies_beyond_from_the_camera():
+    towel = _on_a_table(towel_estimate(), T_ROOM, 0.0)
+    plans = _corner_plans(towel)
+    chosen = corner_to_lift_first(plans, towel, T_ROOM)
+    world = transform_points(T_ROOM, chosen.position[None])[0]
+    assert world[1] < 0, "a near corner (the towel lies beyond it)"
+    assert chosen is next(p for p in plans if transform_points(T_ROOM, p.position[None])[0][1] < 0), \
+        "of the two near corners, equally placed, the planner's first"
+    # the planner's ranking still comes first: near corners scoring clearly lower are not taken
+    far = [p for p in plans if transform_points(T_ROOM, p.position[None])[0][1] > 0]
+    near = [dataclasses.replace(p, score=1.0 - 2 * NEAR_BEST_SCORE) for p in plans if all(p is not q for q in far)]
+    assert any(corner_to_lift_first((*far, *near), towel, T_ROOM) is p for p in far)
+    assert corner_to_lift_first((), towel, T_ROOM) is None
+
+
+@pytest.mark.parametrize("turn_deg", [0.0, 90.0, 180.0, 270.0])
+def test_a_shirt_is_never_lifted_first_by_its_neck(turn_deg):
+    est, outline = tshirt_estimate()
+    shirt = _on_a_table(est, T_ROOM, turn_deg)
+    plans = _corner_plans(shirt)
+    true = {10, 11, 13, 14, 16, 17}  # outline points: the cuffs' and the hem's corners (0 and 8: the neck's)
+    kind = dict(zip((p.vertex_id for p in plans), polygon_corner_of(shirt, [p.vertex_id for p in plans], outline)))
+    chosen = corner_to_lift_first(plans, shirt, T_ROOM)
+    assert kind[chosen.vertex_id] in true
+    facing = {p.vertex_id: _facing(p, shirt, T_ROOM) for p in plans}
+    assert facing[chosen.vertex_id] == max(f for v, f in facing.items() if kind[v] in true)
+    if turn_deg == 0.0:  # the neck toward the camera: a neck corner faces it best, and is passed over
+        assert kind[max(facing, key=facing.get)] not in true
+
+
+def test_a_blunt_corner_is_not_lifted_first_even_on_the_long_edge_facing_the_camera():
+    # a right trapezoid: corners of about 60, 90, 90 and 120 degrees; the blunt one's slanted
+    # side is nearly as long as the longest, but a corner that blunt is a fold's or a shoulder's
+    polygon = np.array([[0.0, 0.0], [0.5, 0.0], [0.5, 0.4], [0.23, 0.4]])
+    sheet = _on_a_table(polygon_estimate(polygon), T_ROOM, 150.0)
+    plans = _corner_plans(sheet)
+    kind = dict(zip((p.vertex_id for p in plans), polygon_corner_of(sheet, [p.vertex_id for p in plans], polygon)))
+    facing = {p.vertex_id: _facing(p, sheet, T_ROOM) for p in plans}
+    assert kind[max(facing, key=facing.get)] == 3, "test setup: the blunt corner faces the camera best"
+    chosen = corner_to_lift_first(plans, sheet, T_ROOM)
+    assert kind[chosen.vertex_id] != 3
+    assert facing[chosen.vertex_id] == max(f for v, f in facing.items() if kind[v] != 3)
