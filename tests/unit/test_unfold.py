@@ -383,9 +383,9 @@ def test_a_shirt_is_never_lifted_first_by_its_neck(turn_deg):
         assert kind[max(facing, key=facing.get)] not in true
 
 
-def test_a_blunt_corner_is_not_lifted_first_even_on_the_long_edge_facing_the_camera():
-    # a right trapezoid: corners of about 60, 90, 90 and 120 degrees; the blunt one's slanted
-    # side is nearly as long as the longest, but a corner that blunt is a fold's or a shoulder's
+def test_a_blunt_corner_is_not_lifted_first_even_when_it_faces_the_camera_best():
+    # a right trapezoid: corners of about 60, 90, 90 and 120 degrees; a corner as blunt as the
+    # last is, on the trials' meshes, a fold's or a shirt's shoulder, not a true corner
     polygon = np.array([[0.0, 0.0], [0.5, 0.0], [0.5, 0.4], [0.23, 0.4]])
     sheet = _on_a_table(polygon_estimate(polygon), T_ROOM, 150.0)
     plans = _corner_plans(sheet)
