@@ -26,7 +26,12 @@ that is right scores about 1 on it:
   bunched finer than the mesh shortens a few edges, but rarely a tenth of them to under
   half their length;
 - ``seen``: how much of the mesh the camera sees (a mesh almost entirely hidden is carried
-  by its motion prior, not by data).
+  by its motion prior, not by data);
+- ``followed``: how little of the mesh has moved far while hidden. A hidden vertex is carried
+  by its neighbours and the motion prior; while the cloth lies still that holds, but a part
+  that moved several centimetres since the camera last saw it (a corner folding over as the
+  cloth is lifted) may be anywhere along the way. A fifth of the mesh so carried costs
+  nothing; more lowers the cue, to 0 at ``CARRIED_NONE`` of it.
 
 Arrays: vertices (N, 3) metres, camera frame; images and masks (H, W).
 """
@@ -42,6 +47,9 @@ from perception.geometry import pixel_index, project
 
 #: cue value below which an estimate is lost whatever the others say
 FLOOR = 0.25
+#: share of the mesh hidden and moved far since last seen: up to the first, the ``followed``
+#: cue is 1; at the second, 0
+CARRIED_ALL, CARRIED_NONE = 0.2, 0.45
 
 
 @dataclass(frozen=True)
@@ -55,11 +63,12 @@ class Assessment:
     unstretched: float
     uncrumpled: float
     seen: float
+    followed: float
 
     @property
     def confidence(self) -> float:
         product = (self.depth * self.coverage * self.precision * self.appearance * self.unstretched * self.uncrumpled
-                   * self.seen)
+                   * self.seen * self.followed)
         return float(np.clip(product, 0.0, 1.0))
 
     def lost(self, threshold: float) -> bool:
@@ -77,7 +86,7 @@ def _ramp(value: float, good: float) -> float:
 
 def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, visible: np.ndarray,
            depth_m: np.ndarray, object_mask: np.ndarray, K: np.ndarray, tol_m: float, appearance: float,
-           leak: float = 0.0) -> Assessment:
+           leak: float = 0.0, carried: float = 0.0) -> Assessment:
     """The Assessment of an estimate.
 
     vertices : (N, 3); visible : (N,) bool, the vertices seen
@@ -90,6 +99,8 @@ def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, 
         (``perception.appearance.AppearanceModel.likeness``)
     leak : the segmentation's (``perception.segmentation.Segment.leak``); above 0.3 the object
         mask's extent is not the object's, and coverage is not measured
+    carried : in [0, 1], the share of the vertices hidden now that have moved far since the
+        camera last saw them (``MeshTracker`` keeps where each was last seen)
     """
     n = len(vertices)
     h, w = depth_m.shape
@@ -125,4 +136,5 @@ def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, 
     return Assessment(depth=_ramp(depth, 0.85), coverage=_ramp(coverage, 0.8), precision=_ramp(precision, 0.85),
                       appearance=float(appearance), unstretched=float(np.clip((1.35 - stretch) / 0.25, 0.0, 1.0)),
                       uncrumpled=float(np.clip((0.15 - crushed) / 0.09, 0.0, 1.0)),
-                      seen=_ramp(seen.sum() / max(n, 1), 0.25))
+                      seen=_ramp(seen.sum() / max(n, 1), 0.25),
+                      followed=float(np.clip((CARRIED_NONE - carried) / (CARRIED_NONE - CARRIED_ALL), 0.0, 1.0)))

@@ -86,6 +86,7 @@ PARAMETER_RANGES = {
     "velocity_prediction": Range(0.0, 2.0),
     "init_iterations": Range(0, 100),
     "confidence_tol_m": Range(0.0, 10.0, lo_open=True),
+    "carried_tol_m": Range(0.0, 10.0, lo_open=True),
     "lost_confidence": Range(0.0, 1.0),
     "reacquire_every": Range(0, 1000),
 }

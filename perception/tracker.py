@@ -175,6 +175,9 @@ class TrackerConfig:
     velocity_prediction : fraction of the last inter-frame motion added to predict the next frame
     init_iterations : smoothing iterations when the mesh is laid on the first frame
     confidence_tol_m : a vertex is supported when its depth agrees within this
+    carried_tol_m : a hidden vertex that has moved this far since the camera (or the robot's
+        hold) last placed it is a guess; a large share of such vertices lowers confidence
+        (``perception.confidence``, cue ``followed``)
     lost_confidence : below this confidence the estimate is flagged lost
     reacquire_every : once lost, the tracker looks for the object again in each of the first
         three lost frames, then in every this many (a search of the whole frame costs time);
@@ -219,13 +222,14 @@ class TrackerConfig:
     velocity_prediction: float = 0.5
     init_iterations: int = 10
     confidence_tol_m: float = 0.03
+    carried_tol_m: float = 0.05
     lost_confidence: float = 0.4
     reacquire_every: int = 10
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
 
     def __post_init__(self):
         positive = ("alpha", "tolerance_m", "match_gate_px", "depth_outlier_m", "boundary_gate_m",
-                    "confidence_tol_m", "occlusion_margin_m")
+                    "confidence_tol_m", "occlusion_margin_m", "carried_tol_m")
         for name in positive:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
@@ -301,6 +305,7 @@ class MeshTracker:
         self._background: RGBDFrame | None = None  # the empty workspace, undistorted
         self._background_given: RGBDFrame | None = None
         self._good_V = None  # (N, 3) the last estimate that was not lost
+        self._last_seen = None  # (N, 3) where each vertex was when last seen or held
         self._rest_lengths = None  # (E,) edge lengths, metres, of the mesh as laid on the object
         self._stretch: StretchTerm | None = None  # the stretch term of those lengths
         self._tethers: Tethers | None = None  # each vertex's distance along the mesh from a held one
@@ -441,6 +446,7 @@ class MeshTracker:
         self._rest_lengths = np.linalg.norm(V[self._edges[:, 0]] - V[self._edges[:, 1]], axis=1)
         self._stretch = StretchTerm(self._edges, self._rest_lengths, n_vertices=len(V))
         self._tethers = Tethers(V, mesh.faces)
+        self._last_seen = V.copy()
         assessment = self._assess(V, frame, visible, obs.mask)
         log.info("initialised mesh: %d vertices, %d faces, %d boundary, %d features", mesh.n_vertices,
                  len(mesh.faces), len(mesh.boundary), self._corr.n_model if self._corr else 0)
@@ -597,11 +603,13 @@ class MeshTracker:
         res = self._solver.minimise(V0, self._data_terms(obs, corr, observed, V0), 2 * cfg.init_iterations, cfg.tolerance_m)
         V = res.vertices
         visible = self._states(V, frame) == VISIBLE
-        assessment = self._assess(V, frame, visible, mask, segment.leak)
+        carried, last_seen = self._carried(V, visible, frame)
+        assessment = self._assess(V, frame, visible, mask, segment.leak, carried)
         if assessment.lost(cfg.lost_confidence):
             log.debug("frame %d: re-acquisition rejected (%s)", frame.seq, assessment.as_dict())
             return None
         self._V, self._V_prev, self._good_V = V, V.copy(), V
+        self._last_seen = last_seen
         self.last_observation = obs
         if self._corr is not None:
             self._corr.initialise(obs.grey, self._feature_mask(mask), V, faces, K)
@@ -792,21 +800,35 @@ class MeshTracker:
         if corr is not None:
             energies["inliers"] = float(corr.weights.sum())
         visible = self._states(V, frame) == VISIBLE
-        assessment = self._assess(V, frame, visible, mask, segment.leak)
+        carried, self._last_seen = self._carried(V, visible, frame)
+        assessment = self._assess(V, frame, visible, mask, segment.leak, carried)
         return self._estimate(frame, V, energies, iterations, assessment, t0, visible)
+
+    def _carried(self, V: np.ndarray, visible: np.ndarray, frame: RGBDFrame) -> tuple[float, np.ndarray]:
+        """(share, last_seen): the share of the vertices of ``V`` (N, 3) that are hidden now
+        (``visible`` (N,) bool False, not held by the robot) and lie more than ``carried_tol_m``
+        from where they were last seen or held, and (N, 3) where each vertex was last seen or
+        held, counting this estimate."""
+        placed = visible.copy()
+        if frame.held_vertices is not None and frame.held_vertices.size:
+            placed[frame.held_vertices] = True
+        last_seen = np.where(placed[:, None], V, self._last_seen)
+        moved = np.linalg.norm(V - last_seen, axis=1) > self.config.carried_tol_m
+        return float(np.mean(moved)), last_seen
 
     # -- outputs -------------------------------------------------------------------------
 
     def _assess(self, V: np.ndarray, frame: RGBDFrame, visible: np.ndarray, object_mask: np.ndarray,
-                leak: float = 0.0, compare_appearance: bool = True) -> Assessment:
+                leak: float = 0.0, carried: float = 0.0) -> Assessment:
         """The evidence for estimate ``V`` (N, 3) in ``frame`` (``perception.confidence``);
-        ``leak`` is the segmentation's (``perception.segmentation.Segment``)."""
+        ``leak`` is the segmentation's (``perception.segmentation.Segment``), ``carried`` the
+        share of the mesh moved far while hidden (``_carried``)."""
         K = frame.camera.K
         likeness = 1.0
-        if compare_appearance and self._appearance is not None:
+        if self._appearance is not None:
             likeness = self._appearance.likeness(frame.rgb, V, self.mesh.faces, K, visible)
         assessment = assess(V, self._edges, self._rest_lengths, visible, frame.depth_m, object_mask,
-                            K, self.config.confidence_tol_m, likeness, leak)
+                            K, self.config.confidence_tol_m, likeness, leak, carried)
         self.last_assessment = assessment
         return assessment
 

@@ -233,3 +233,30 @@ def test_a_print_is_not_found_again_on_a_plain_surface_of_its_colour_unless_the_
         else:
             assert tracker.reacquisitions == 0 and all(e.lost for e in estimates), \
                 [(e.confidence, e.lost) for e in estimates]
+
+
+@pytest.mark.parametrize("hidden_share", [0.15, 0.5])
+def test_a_part_carried_far_out_of_sight_is_not_vouched_for(tex, hidden_share):
+    """A hand held in front of the sheet's left part moves with it, 8 mm a frame, 9.6 cm in all.
+    Where the hidden part now is, no frame has shown: once half the sheet has moved more than
+    5 cm unseen, the estimate is not trusted for grasping; with a small part hidden it still is."""
+    rng = np.random.default_rng(5)
+    tracker = MeshTracker(TrackerConfig(features="klt"))
+    e0 = tracker.initialise(sheet(np.zeros(3), tex, 0))
+    left = e0.vertices[:, 0] < np.quantile(e0.vertices[:, 0], hidden_share)
+    confidences = []
+    for k in range(1, 13):
+        shift = np.array([0.008 * k, 0.0, 0.0])
+        uv = project(e0.vertices[left] + shift, CAM.K)
+        region = np.zeros((480, 640), bool)
+        (u0, v0), (u1, v1) = np.floor(uv.min(0)).astype(int) - 6, np.ceil(uv.max(0)).astype(int) + 6
+        region[max(v0, 0):v1, max(u0, 0):u1] = True
+        e = tracker.track(with_occluder(sheet(shift, tex, k), region, 0.9, rng, known=True))
+        confidences.append(e.confidence)
+        assert not e.visible[left].any()  # the hand hides them all
+    early, late = confidences[:5], confidences[-3:]  # moved up to 4 cm, then 8-9.6 cm while hidden
+    assert min(early) > 0.8, confidences
+    if hidden_share < 0.2:
+        assert min(late) > 0.8, confidences
+    else:
+        assert max(late) < 0.5, confidences
