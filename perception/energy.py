@@ -234,6 +234,11 @@ class BoundaryTerm:
     outline_points : (P, 3) float64 metres, the object's outline in 3D
     mask : (H, W) bool object mask (decides the sign); K : (3, 3)
     gate_m : boundary vertices farther than this from the outline are left alone
+    hidden_points : (Q, 3) float64 metres, the rest of the object's contour, where the image's
+        border cuts it or something nearer hides it (``Observation.hidden_contour_cam``). A
+        boundary vertex nearer to it than to the outline is left alone: it lies where the data
+        do not say where the object ends, and the outline's nearest point is the end of a gap
+        in it, along the object's edge, not across it.
     """
 
     vertex_ids: np.ndarray
@@ -242,10 +247,15 @@ class BoundaryTerm:
     mask: np.ndarray
     K: np.ndarray
     gate_m: float
+    hidden_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     name: str = "boundary"
 
     def __post_init__(self):
-        self._tree = cKDTree(self.outline_points) if len(self.outline_points) else None
+        # one tree over both parts of the contour: the nearest point says which part is nearer
+        self._points = np.vstack([self.outline_points, self.hidden_points]) if len(self.hidden_points) \
+            else self.outline_points
+        self._own = np.arange(len(self._points)) < len(self.outline_points)
+        self._tree = cKDTree(self._points) if len(self.outline_points) else None
         self._last = None
 
     def signed_distance(self, V: np.ndarray):
@@ -260,11 +270,11 @@ class BoundaryTerm:
             return z, np.zeros((n, 3)), np.ones(n), np.zeros(n, bool)
         vb = V[self.vertex_ids]
         dist, idx = self._tree.query(vb)
-        offset = vb - self.outline_points[idx]
+        offset = vb - self._points[idx]
         h, w = self.mask.shape
         cols, rows, inside = pixel_index(project(vb, self.K), w, h)
         sign = np.where(inside & self.mask[rows, cols], 1.0, -1.0)
-        active = (dist < self.gate_m) & (dist > 1e-12)
+        active = (dist < self.gate_m) & (dist > 1e-12) & self._own[idx]
         return sign * dist, offset, sign, active
 
     def evaluate(self, V: np.ndarray):

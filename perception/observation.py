@@ -16,7 +16,7 @@ import numpy as np
 from ipc.messages import RGBDFrame
 from perception.geometry import backproject, pixel_index, ray_lengths, rays
 from perception.raster import bounding_box
-from perception.segmentation import outline, valid_depth
+from perception.segmentation import SHADOW_PX, split_contour, valid_depth
 
 
 @dataclass
@@ -24,13 +24,17 @@ class Observation:
     """grey : (H, W) uint8; mask : (H, W) bool object mask;
     depth_m : (H, W) float32 smoothed object depth along z, 0 off the object or unmeasured;
     range_m : (H, W) float32 the same as distance from the camera centre;
-    outline_cam : (P, 3) float64 metres, the object's outline points; K : (3, 3)."""
+    outline_cam : (P, 3) float64 metres, the object's outline points;
+    hidden_contour_cam : (Q, 3) float64 metres, the rest of its contour: where the image's
+    border cuts it or something nearer hides it, which says nothing of where it ends;
+    K : (3, 3)."""
 
     grey: np.ndarray
     mask: np.ndarray
     depth_m: np.ndarray
     range_m: np.ndarray
     outline_cam: np.ndarray
+    hidden_contour_cam: np.ndarray
     K: np.ndarray
 
     def depth_at(self, xy: np.ndarray) -> np.ndarray:
@@ -87,19 +91,26 @@ def observe(frame: RGBDFrame, mask: np.ndarray, window_px: int = 5, occlusion_ma
     depth = smooth_depth_in_mask(frame.depth_m, mask, window_px)
     h, w = depth.shape
     rng = depth * ray_lengths(K, w, h)
-    box = bounding_box(mask, pad=1)  # the outline lies in the mask's box (plus one pixel for neighbours)
-    if box is not None:
-        y0, y1, x0, x1 = box
-        occluder = None if frame.occluder_mask is None else frame.occluder_mask[y0:y1, x0:x1]
-        if unsearched is not None:
-            cut = unsearched[y0:y1, x0:x1]
-            occluder = cut if occluder is None else occluder | cut
-        oy, ox = np.nonzero(outline(mask[y0:y1, x0:x1], frame.depth_m[y0:y1, x0:x1], occlusion_margin_m, occluder))
+    # the contour lies in the mask's box; the pixels that decide whether it is hidden lie
+    # within SHADOW_PX of it, plus one for the neighbours. With that padding the crop's
+    # border meets the mask only where the image's border does.
+    box = bounding_box(mask, pad=SHADOW_PX + 1)
+    if box is None:
+        empty = np.zeros((0, 3))
+        return Observation(grey=grey, mask=mask.astype(bool), depth_m=depth, range_m=rng, outline_cam=empty,
+                           hidden_contour_cam=empty, K=K)
+    y0, y1, x0, x1 = box
+    occluder = None if frame.occluder_mask is None else frame.occluder_mask[y0:y1, x0:x1]
+    if unsearched is not None:
+        cut = unsearched[y0:y1, x0:x1]
+        occluder = cut if occluder is None else occluder | cut
+    lifted = []
+    for part in split_contour(mask[y0:y1, x0:x1], frame.depth_m[y0:y1, x0:x1], occlusion_margin_m, occluder):
+        oy, ox = np.nonzero(part)
         oy, ox = oy + y0, ox + x0
-    else:
-        oy = ox = np.zeros(0, np.int64)
-    od = depth[oy, ox]
-    ok = od > 0
-    uv = np.column_stack([ox[ok], oy[ok]]).astype(np.float64)
-    outline_cam = rays(uv, K) * od[ok, None]
-    return Observation(grey=grey, mask=mask.astype(bool), depth_m=depth, range_m=rng, outline_cam=outline_cam, K=K)
+        od = depth[oy, ox]
+        ok = od > 0
+        uv = np.column_stack([ox[ok], oy[ok]]).astype(np.float64)
+        lifted.append(rays(uv, K) * od[ok, None])
+    return Observation(grey=grey, mask=mask.astype(bool), depth_m=depth, range_m=rng, outline_cam=lifted[0],
+                       hidden_contour_cam=lifted[1], K=K)

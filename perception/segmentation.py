@@ -277,25 +277,71 @@ def find_object(depth_m: np.ndarray, K: np.ndarray, cfg: SegmentationConfig = Se
     return _grow(labels == best, candidate)
 
 
-def outline(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: float = 0.03,
-            occluder_mask: np.ndarray | None = None) -> np.ndarray:
-    """(H, W) bool: the object's own outline pixels.
+#: how far past the object's contour, over pixels without depth, a nearer surface still hides
+#: it: a depth sensor loses the pixels beside a depth discontinuity (the emitter's shadow,
+#: mixed pixels), so the contour behind a hand or a gripper often borders a band without
+#: depth a few pixels wide, and the nearer surface lies beyond it
+SHADOW_PX = 16
 
-    Pixels of ``mask`` with a 4-neighbour outside it, except where the object is cut by the
-    image border or hidden behind something nearer (an occluding hand or gripper, found by
-    depth or given as ``occluder_mask`` (H, W) bool): those contour pixels say nothing
-    about where the object ends.
+
+def split_contour(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: float = 0.03,
+                  occluder_mask: np.ndarray | None = None, shadow_px: int = SHADOW_PX):
+    """The object's contour in two parts: (outline, hidden), (H, W) bool each.
+
+    The contour is the pixels of ``mask`` with a 4-neighbour outside it. ``outline`` is
+    where the object ends; ``hidden`` is the rest, which says nothing about where it ends:
+    the object cut by the image border, or hidden behind something nearer (an occluding hand
+    or gripper, found by depth or given as ``occluder_mask`` (H, W) bool). Which it is, the
+    first thing met going out of the object from the contour pixel says: a surface nearer
+    than the object by ``occlusion_margin_m``, a known occluder or the image border hide it;
+    a farther surface, or none within ``shadow_px`` pixels without depth (``SHADOW_PX``),
+    is where the object ends.
     """
     m = mask.astype(bool)
     h, w = m.shape
-    d = np.where(valid_depth(depth_m), depth_m, np.inf)
-    pad_m = np.pad(m, 1, constant_values=True)  # the border is not an outline
-    pad_d = np.pad(d, 1, constant_values=np.inf)
-    pad_o = np.pad(np.zeros((h, w), bool) if occluder_mask is None else occluder_mask.astype(bool), 1)
-    out = np.zeros_like(m)
-    for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):
-        nb_m = pad_m[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
-        nb_d = pad_d[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
-        occluded = (nb_d < d - occlusion_margin_m) | pad_o[1 + dr : 1 + dr + h, 1 + dc : 1 + dc + w]
-        out |= m & ~nb_m & ~occluded
-    return out
+    # flat views: the walk below reads them by flat pixel index
+    inside, valid, depth = m.ravel(), valid_depth(depth_m).ravel(), depth_m.ravel()
+    occluder = np.zeros(h * w, bool) if occluder_mask is None else occluder_mask.astype(bool).ravel()
+    # (pixel, outward step) pairs: each contour pixel once for each 4-neighbour outside the object
+    inner = np.zeros_like(m)
+    inner[1:-1, 1:-1] = m[:-2, 1:-1] & m[2:, 1:-1] & m[1:-1, :-2] & m[1:-1, 2:]
+    rows, cols = np.nonzero(m & ~inner)
+    steps = np.array([(-1, 0), (1, 0), (0, -1), (0, 1)])
+    at, off = _ray(rows[:, None], cols[:, None], steps[:, 0], steps[:, 1], 1, h, w)
+    which, step = np.nonzero(off | ~inside[at])
+    rows, cols, dr, dc = rows[which], cols[which], steps[step, 0, None], steps[step, 1, None]
+    pick = np.arange(len(rows))
+    # The object's depth there. The sensor often loses it at the object's own edge: then
+    # the first depth measured going into the object, within 2 pixels.
+    at, _ = _ray(rows[:, None], cols[:, None], -dr, -dc, np.arange(3), h, w)
+    measured = inside[at] & valid[at]
+    first = np.argmax(measured, axis=1)
+    near = np.where(measured[pick, first], depth[at[pick, first]], np.inf) - occlusion_margin_m
+    # Going out of the object a pixel a step, the first pixel that decides: beyond the image's
+    # border, a known occluder or a nearer surface hide the contour; a farther surface, or the
+    # object again, end it. A walk that meets only pixels without depth ends it too. Most
+    # walks end at the first step; only those that start on a pixel without depth go on.
+    at, off = _ray(rows, cols, dr[:, 0], dc[:, 0], 1, h, w)
+    is_hidden = off | occluder[at] | (valid[at] & (depth[at] < near))
+    go = np.flatnonzero(~is_hidden & ~valid[at])
+    if len(go) and shadow_px > 0:
+        at, off = _ray(rows[go, None], cols[go, None], dr[go], dc[go], np.arange(2, int(shadow_px) + 2), h, w)
+        seen = valid[at]
+        cut = off | occluder[at] | (seen & (depth[at] < near[go, None]))
+        first = np.argmax(cut | seen | inside[at], axis=1)
+        is_hidden[go] = cut[np.arange(len(go)), first]
+    own = np.zeros_like(m)
+    hidden = np.zeros_like(m)
+    hidden[rows[is_hidden], cols[is_hidden]] = True
+    own[rows[~is_hidden], cols[~is_hidden]] = True
+    return own, hidden & ~own
+
+
+def _ray(rows: np.ndarray, cols: np.ndarray, dr, dc, k, h: int, w: int):
+    """Flat indices into an (h, w) image of the pixels k steps (dr, dc) from (rows, cols),
+    broadcast together, and where the steps left the image (bool, same shape; index 0 there)."""
+    r, c = rows + dr * k, cols + dc * k
+    off = (r < 0) | (r >= h) | (c < 0) | (c >= w)
+    at = r * w + c
+    at[off] = 0
+    return at, off

@@ -483,7 +483,8 @@ class MeshTracker:
         """The boundary term over the boundary vertices that are ``observed`` ((N,) bool; all if None)."""
         ids = self.mesh.boundary
         keep = np.ones(len(ids), bool) if observed is None else observed[ids]
-        return BoundaryTerm(ids[keep], g0[keep], obs.outline_cam, obs.mask, obs.K, self.config.boundary_gate_m)
+        return BoundaryTerm(ids[keep], g0[keep], obs.outline_cam, obs.mask, obs.K, self.config.boundary_gate_m,
+                            obs.hidden_contour_cam)
 
     def _data_terms(self, obs: Observation, correspondences: CorrespondenceTerm | None,
                     observed: np.ndarray | None = None, prior: np.ndarray | None = None, frame: RGBDFrame | None = None):

@@ -85,16 +85,20 @@ def bent_points(uv: np.ndarray, centre: np.ndarray, size_m, radius_m: float) -> 
 
 
 def with_occluder(frame: RGBDFrame, region: np.ndarray, depth_m: float, rng: np.random.Generator,
-                  known: bool = False) -> RGBDFrame:
+                  known: bool = False, shadow_px: int = 0) -> RGBDFrame:
     """``frame`` with an object in front of it covering ``region`` (H, W) bool at ``depth_m``.
 
     The object has a texture of its own (features on it must not bind to the sheet);
-    ``known`` also hands its mask to the tracker as ``RGBDFrame.occluder_mask``.
+    ``known`` also hands its mask to the tracker as ``RGBDFrame.occluder_mask``. The pixels
+    within ``shadow_px`` of it lose their depth, as a depth sensor's do beside a discontinuity.
     """
     import cv2
 
     rgb, depth = frame.rgb.copy(), frame.depth_m.copy()
     blobs = cv2.GaussianBlur(rng.integers(0, 256, rgb.shape, dtype=np.uint8), (0, 0), 4)
     rgb[region] = cv2.normalize(blobs, None, 40, 230, cv2.NORM_MINMAX)[region]
+    if shadow_px > 0:
+        grown = cv2.dilate(region.astype(np.uint8), np.ones((2 * shadow_px + 1,) * 2, np.uint8)).astype(bool)
+        depth[grown & ~region] = 0.0
     depth[region] = depth_m
     return RGBDFrame(rgb, depth, frame.camera, frame.timestamp_s, frame.seq, occluder_mask=region if known else None)

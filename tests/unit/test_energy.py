@@ -250,6 +250,24 @@ def test_boundary_pulls_outside_vertex_inward():
     assert e == pytest.approx(0.5 * (0.03 + 0.01) ** 2, rel=1e-3)
 
 
+def test_boundary_leaves_alone_the_vertices_nearest_a_hidden_stretch_of_the_contour():
+    """Something nearer hides the square's right edge from y = -0.05 to 0.05. A vertex on that
+    stretch is nearest to the ends of the gap in the outline, 5 cm along the edge, and would be
+    pulled along it; with the hidden stretch known it is left alone. Vertices nearer the
+    outline than the hidden stretch are pulled as before."""
+    outline, mask = outline_square(1.2)
+    gap = (np.abs(outline[:, 0] - 0.1) < 1e-9) & (np.abs(outline[:, 1]) < 0.05)
+    V = np.array([[0.1, 0.0, 1.2], [0.1, 0.01, 1.2], [0.13, -0.08, 1.2]])  # on the gap, and off a seen stretch
+    ids = np.arange(3)
+    blind = BoundaryTerm(ids, np.zeros(3), outline[~gap], mask, K, gate_m=0.06)
+    assert blind.signed_distance(V)[3][:2].all() and np.abs(blind.evaluate(V)[1][:2, 1]).min() > 0.03
+    term = BoundaryTerm(ids, np.zeros(3), outline[~gap], mask, K, gate_m=0.06, hidden_points=outline[gap])
+    _, grad = term.evaluate(V)
+    np.testing.assert_array_equal(term.signed_distance(V)[3], [False, False, True])
+    assert np.all(grad[:2] == 0) and grad[2, 0] > 0
+    check_gradient(term, V)
+
+
 def test_outside_pulls_seen_vertices_off_the_object_to_its_outline_and_no_others():
     rng = np.random.default_rng(6)
     outline, mask = outline_square(1.2)

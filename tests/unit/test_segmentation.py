@@ -1,11 +1,12 @@
 """Depth segmentation against floors, walls and a hand holding the cloth."""
 
+import cv2
 import numpy as np
 import pytest
 
 from ipc.messages import CameraInfo
 from perception.geometry import rays
-from perception.segmentation import SegmentationConfig, find_object, outline, segment_tracked
+from perception.segmentation import SegmentationConfig, find_object, segment_tracked, split_contour
 
 CAM = CameraInfo.from_fov(320, 240, np.deg2rad(50))
 K = CAM.K
@@ -99,6 +100,38 @@ def test_outline_skips_occluding_contour_and_image_border():
     # a mask touching the image border has no outline along the border
     full = np.ones((H, W), bool)
     assert not outline(full, np.ones((H, W), np.float32)).any()
+
+
+def test_outline_skips_a_contour_behind_a_band_without_depth_beside_a_nearer_surface():
+    """A depth sensor loses the pixels beside a discontinuity: the cloth's contour behind the
+    hand borders a band without depth, and the hand lies beyond it. That contour is still
+    hidden; a real edge beside pixels without depth and nothing nearer stays an outline."""
+    depth, truth, hand = scene_depth(hand=True)
+    cross = cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3))
+    band = cv2.dilate(hand.astype(np.uint8), cross, iterations=4).astype(bool) & ~hand & truth  # a 4-pixel shadow
+    cloth = truth & ~band
+    shadowed = depth.copy()
+    shadowed[band] = 0.0
+    behind_band = cloth & cv2.dilate(band.astype(np.uint8), cross).astype(bool)
+    # away from the cloth's side edge, where the wall beside it is a real outline
+    behind_band &= ~cv2.dilate((~truth & ~hand).astype(np.uint8), cross).astype(bool)
+    assert behind_band.sum() > 5
+    # looking only at the next pixel, the band reads as background beyond a real edge
+    assert outline(cloth, shadowed, shadow_px=0)[behind_band].all()
+    # looking across the band, the hand hides the contour; at the band's corners going straight
+    # out of the cloth does not meet the hand
+    assert outline(cloth, shadowed)[behind_band].mean() < 0.2
+    # the cloth's right edge beside a column without depth, the wall beyond: still its outline
+    no_wall = shadowed.copy()
+    beside = np.roll(cloth, 1, 1) & ~cloth & ~hand  # the cloth is clear of the image's sides
+    no_wall[beside] = 0.0
+    edge = cloth & np.roll(beside, -1, 1)
+    assert edge.sum() > 5
+    assert outline(cloth, no_wall)[edge].all()
+
+
+def outline(*args, **kwargs):
+    return split_contour(*args, **kwargs)[0]
 
 
 def test_find_object_sees_a_wall_as_background_though_depth_stops_short_of_the_edges():

@@ -117,6 +117,38 @@ def test_an_occluder_passing_in_front_leaves_the_hidden_part_where_it_belongs(te
     assert all(visibility_right), visibility_right
 
 
+def test_an_occluder_coming_over_the_edge_does_not_drag_the_outline_with_it(tex):
+    """A bar 40 cm in front of a still sheet comes slowly in over its left edge and covers a
+    quarter of it; the sensor loses the depth in a 6-pixel band around the bar, as real ones
+    do. The contour beside that band says nothing of where the sheet ends: the sheet's edge,
+    passing through the band as the bar comes, must not be pulled along with the bar's edge
+    (no stretch term here, which would hide a pull)."""
+    rng = np.random.default_rng(5)
+    tracker = MeshTracker(TrackerConfig(lambda_l=0.0))
+    e0 = tracker.initialise(sheet(np.zeros(3), tex, 0))
+    cols, _ = np.rint(project(e0.vertices, CAM.K)).astype(int).T
+    left = cols.min()
+    worst, areas = 0.0, []
+    for k in range(1, 31):
+        region = np.zeros((480, 640), bool)
+        region[:, : left - 6 + 3 * k] = True
+        e = tracker.track(with_occluder(sheet(np.zeros(3), tex, k), region, 0.9, rng, shadow_px=6))
+        behind = region[np.rint(project(e0.vertices, CAM.K)[:, 1]).astype(int), cols]
+        if not behind.any():
+            continue
+        err = np.linalg.norm(e.vertices - e0.vertices, axis=1)
+        worst = max(worst, err[behind].mean())
+        hidden = np.all(behind[e.faces], axis=1)
+        if hidden.any():
+            a, b, c = (e.vertices[e.faces[hidden, i]] for i in range(3))
+            a0, b0, c0 = (e0.vertices[e.faces[hidden, i]] for i in range(3))
+            areas.append(np.linalg.norm(np.cross(b - a, c - a), axis=1).sum()
+                         / np.linalg.norm(np.cross(b0 - a0, c0 - a0), axis=1).sum())
+    assert behind.mean() > 0.2 and len(areas) > 20
+    assert worst < 0.008, f"hidden vertices up to {worst * 1000:.1f} mm (mean) from the sheet"
+    assert np.all(np.abs(np.array(areas) - 1.0) < 0.1), np.round(areas, 2)
+
+
 def test_a_known_occluder_mask_removes_the_features_and_outline_on_it(tex):
     """A textured patch lying on the sheet is indistinguishable by depth; declared an
     occluder, it leaves the object's mask, its outline and its features."""
