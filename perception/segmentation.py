@@ -299,35 +299,48 @@ def split_contour(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: flo
     """
     m = mask.astype(bool)
     h, w = m.shape
-    # flat views: the walk below reads them by flat pixel index
-    inside, valid, depth = m.ravel(), valid_depth(depth_m).ravel(), depth_m.ravel()
+    # flat views, read by flat pixel index; depth is checked only where it is read
+    inside, depth = m.ravel(), np.asarray(depth_m).ravel()
     occluder = np.zeros(h * w, bool) if occluder_mask is None else occluder_mask.astype(bool).ravel()
+
+    def measured(at):
+        d = depth[at]
+        return np.isfinite(d) & (d > 0), d
+
     # (pixel, outward step) pairs: each contour pixel once for each 4-neighbour outside the object
-    inner = np.zeros_like(m)
-    inner[1:-1, 1:-1] = m[:-2, 1:-1] & m[2:, 1:-1] & m[1:-1, :-2] & m[1:-1, 2:]
-    rows, cols = np.nonzero(m & ~inner)
+    inner = cv2.erode(m.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3)),
+                      borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    rows, cols = np.divmod(np.flatnonzero(inside & ~inner.view(bool).ravel()), w)
     steps = np.array([(-1, 0), (1, 0), (0, -1), (0, 1)])
     at, off = _ray(rows[:, None], cols[:, None], steps[:, 0], steps[:, 1], 1, h, w)
     which, step = np.nonzero(off | ~inside[at])
-    rows, cols, dr, dc = rows[which], cols[which], steps[step, 0, None], steps[step, 1, None]
-    pick = np.arange(len(rows))
+    rows, cols, dr, dc = rows[which], cols[which], steps[step, 0], steps[step, 1]
     # The object's depth there. The sensor often loses it at the object's own edge: then
     # the first depth measured going into the object, within 2 pixels.
-    at, _ = _ray(rows[:, None], cols[:, None], -dr, -dc, np.arange(3), h, w)
-    measured = inside[at] & valid[at]
-    first = np.argmax(measured, axis=1)
-    near = np.where(measured[pick, first], depth[at[pick, first]], np.inf) - occlusion_margin_m
+    ok, near = measured(rows * w + cols)
+    near = np.where(ok, near, np.inf)
+    lost = np.flatnonzero(~ok)
+    if len(lost):
+        at, _ = _ray(rows[lost, None], cols[lost, None], -dr[lost, None], -dc[lost, None], np.arange(1, 3), h, w)
+        seen, d = measured(at)
+        seen &= inside[at]
+        first = np.argmax(seen, axis=1)
+        pick = np.arange(len(lost))
+        near[lost] = np.where(seen[pick, first], d[pick, first], np.inf)
+    near = near - occlusion_margin_m
     # Going out of the object a pixel a step, the first pixel that decides: beyond the image's
     # border, a known occluder or a nearer surface hide the contour; a farther surface, or the
     # object again, end it. A walk that meets only pixels without depth ends it too. Most
     # walks end at the first step; only those that start on a pixel without depth go on.
-    at, off = _ray(rows, cols, dr[:, 0], dc[:, 0], 1, h, w)
-    is_hidden = off | occluder[at] | (valid[at] & (depth[at] < near))
-    go = np.flatnonzero(~is_hidden & ~valid[at])
+    at, off = _ray(rows, cols, dr, dc, 1, h, w)
+    seen, d = measured(at)
+    is_hidden = off | occluder[at] | (seen & (d < near))
+    go = np.flatnonzero(~is_hidden & ~seen)
     if len(go) and shadow_px > 0:
-        at, off = _ray(rows[go, None], cols[go, None], dr[go], dc[go], np.arange(2, int(shadow_px) + 2), h, w)
-        seen = valid[at]
-        cut = off | occluder[at] | (seen & (depth[at] < near[go, None]))
+        at, off = _ray(rows[go, None], cols[go, None], dr[go, None], dc[go, None], np.arange(2, int(shadow_px) + 2),
+                       h, w)
+        seen, d = measured(at)
+        cut = off | occluder[at] | (seen & (d < near[go, None]))
         first = np.argmax(cut | seen | inside[at], axis=1)
         is_hidden[go] = cut[np.arange(len(go)), first]
     own = np.zeros_like(m)
