@@ -13,6 +13,11 @@ K = CAM.K
 H, W = 240, 320
 
 
+def outline(*args, **kwargs):
+    """The contour's outline part (``split_contour``), where the object ends."""
+    return split_contour(*args, **kwargs)[0]
+
+
 def scene_depth(floor=True, wall=True, cloth=True, hand=False):
     """Camera 1 m above a floor, looking level; a wall 2.2 m ahead; a cloth 1.3 m ahead.
 
@@ -128,10 +133,6 @@ def test_outline_skips_a_contour_behind_a_band_without_depth_beside_a_nearer_sur
     edge = cloth & np.roll(beside, -1, 1)
     assert edge.sum() > 5
     assert outline(cloth, no_wall)[edge].all()
-
-
-def outline(*args, **kwargs):
-    return split_contour(*args, **kwargs)[0]
 
 
 def test_find_object_sees_a_wall_as_background_though_depth_stops_short_of_the_edges():
