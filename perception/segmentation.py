@@ -305,7 +305,7 @@ def split_contour(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: flo
 
     def measured(at):
         d = depth[at]
-        return np.isfinite(d) & (d > 0), d
+        return valid_depth(d), d
 
     # (pixel, outward step) pairs: each contour pixel once for each 4-neighbour outside the object
     inner = cv2.erode(m.view(np.uint8), cv2.getStructuringElement(cv2.MORPH_CROSS, (3, 3)),
@@ -315,6 +315,7 @@ def split_contour(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: flo
     at, off = _ray(rows[:, None], cols[:, None], steps[:, 0], steps[:, 1], 1, h, w)
     which, step = np.nonzero(off | ~inside[at])
     rows, cols, dr, dc = rows[which], cols[which], steps[step, 0], steps[step, 1]
+    first_at, first_off = at[which, step], off[which, step]  # the first step out, for the walk below
     # The object's depth there. The sensor often loses it at the object's own edge: then
     # the first depth measured going into the object, within 2 pixels.
     ok, near = measured(rows * w + cols)
@@ -332,9 +333,8 @@ def split_contour(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: flo
     # border, a known occluder or a nearer surface hide the contour; a farther surface, or the
     # object again, end it. A walk that meets only pixels without depth ends it too. Most
     # walks end at the first step; only those that start on a pixel without depth go on.
-    at, off = _ray(rows, cols, dr, dc, 1, h, w)
-    seen, d = measured(at)
-    is_hidden = off | occluder[at] | (seen & (d < near))
+    seen, d = measured(first_at)
+    is_hidden = first_off | occluder[first_at] | (seen & (d < near))
     go = np.flatnonzero(~is_hidden & ~seen)
     if len(go) and shadow_px > 0:
         at, off = _ray(rows[go, None], cols[go, None], dr[go, None], dc[go, None], np.arange(2, int(shadow_px) + 2),
