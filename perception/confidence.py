@@ -10,9 +10,11 @@ that is right scores about 1 on it:
   (within ``tol_m``); a vertex the camera sees through, or one more than ``tol_m`` behind
   the measured surface, disagrees;
 - ``coverage``: the fraction of the segmented object that the projected mesh covers (a
-  mesh squeezed or slid off part of the object leaves it uncovered); where the
-  segmentation could not find the object's edge (a cloth on a table of its own colour is
-  continuous with the table), it says nothing and counts 1;
+  mesh squeezed or slid off part of the object leaves it uncovered); where colour tells the
+  object from its surroundings, the object as far as its colour reaches beyond the
+  segmentation's search, since a mesh that lost part of the object predicts a search that
+  misses that part; where the segmentation could not find the object's edge (a cloth on a
+  table of its own colour is continuous with the table), it says nothing and counts 1;
 - ``precision``: the fraction of the vertices seen that project onto the object;
 - ``appearance``: how alike the mesh's material points look now and when the mesh was
   made: their texture (normalised correlation, over the whole mesh and region by region),
@@ -86,7 +88,7 @@ def _ramp(value: float, good: float) -> float:
 
 def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, visible: np.ndarray,
            depth_m: np.ndarray, object_mask: np.ndarray, K: np.ndarray, tol_m: float, appearance: float,
-           leak: float = 0.0, carried: float = 0.0) -> Assessment:
+           leak: float = 0.0, carried: float = 0.0, extent: np.ndarray | None = None) -> Assessment:
     """The Assessment of an estimate.
 
     vertices : (N, 3); visible : (N,) bool, the vertices seen
@@ -101,6 +103,9 @@ def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, 
         mask's extent is not the object's, and coverage is not measured
     carried : in [0, 1], the share of the vertices hidden now that have moved far since the
         camera last saw them (``MeshTracker`` keeps where each was last seen)
+    extent : (H, W) bool, the object as far as its colour reaches beyond the segmentation's
+        search (``perception.segmentation.Segment.extent``, known occluders excluded), or
+        None: what coverage is measured on
     """
     n = len(vertices)
     h, w = depth_m.shape
@@ -116,7 +121,7 @@ def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, 
     # share of the surface (three quarters of a spacing, so neighbours overlap). As the
     # triangles drawn would be, to a few pixels, at a fraction of the cost.
     q = 4
-    small = object_mask[::q, ::q]
+    small = (object_mask if extent is None else extent)[::q, ::q]
     area = small.sum()
     coverage = 0.0
     if area:

@@ -26,6 +26,11 @@ from perception.raster import bounding_box
 log = logging.getLogger(__name__)
 
 
+#: how far beyond the prediction a tracked object's extent is looked for, in search margins
+EXTENT_REACH = 4
+#: gaps without depth up to twice this (pixels) do not part the extent
+BRIDGE_PX = 5
+
 @dataclass(frozen=True)
 class Segment:
     """The object found around a prediction.
@@ -36,11 +41,17 @@ class Segment:
     leak : in [0, 1], the fraction of the mask's edge that runs along the unsearched pixels
         (near 0 when the object lies within the search; high when it is continuous with a
         surface that goes on, such as a table the cloth lies on)
+    extent : (H, W) bool, the mask and the pixels of the object's colour joined to it beyond
+        the search (``EXTENT_REACH`` margins at most); None when colour cannot tell the
+        object from its surroundings. A mesh that lost part of the object (squeezed into what
+        it still covers while the rest moved on) predicts a search that misses that part, and
+        only the extent still sees it.
     """
 
     mask: np.ndarray
     unsearched: np.ndarray
     leak: float = 0.0
+    extent: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -135,17 +146,75 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
     d = np.where(valid, depth, 0.0)
     candidate = valid & search & (d > z_range[0] - cfg.depth_band_m) & (d < z_range[1] + cfg.depth_band_m)
     region, leak = _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg)
-    if leak > 0.1 and colour is not None and rgb is not None and colour.informative:
+    if colour is None or rgb is None or not colour.informative:
+        out[y0:y1, x0:x1] = region
+        return Segment(out, unsearched, leak)
+    # Colour tells the object from its surroundings: look at it over the wider box that the
+    # extent needs, once.
+    Y0, Y1, X0, X1 = bounding_box(predicted_mask, pad=EXTENT_REACH * cfg.search_margin_px)
+    p_wide = colour.probability(rgb[Y0:Y1, X0:X1])
+    if leak > 0.1:
         # Depth runs on beyond the search: the object lies on something of its own depth
         # (a table). Colour may tell them apart.
-        p = colour.probability(rgb[y0:y1, x0:x1])
-        # Inside the prediction only wide areas of the surroundings' colour go (where the
-        # cloth was before it moved), not a print's patches of a similar colour.
-        unlike = cv2.morphologyEx((pred & (p < 0.15)).astype(np.uint8), cv2.MORPH_OPEN, np.ones((15, 15), np.uint8))
-        candidate &= (p >= 0.5) | (pred & ~unlike.astype(bool))
+        p = p_wide[y0 - Y0:y1 - Y0, x0 - X0:x1 - X0]
+        candidate &= (p >= 0.5) | (pred & ~_uncovered(pred, p))
         region, leak = _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg)
     out[y0:y1, x0:x1] = region
-    return Segment(out, unsearched, leak)
+    extent = np.zeros(predicted_mask.shape, bool)
+    extent[Y0:Y1, X0:X1] = _colour_extent(out[Y0:Y1, X0:X1], depth_m[Y0:Y1, X0:X1], p_wide, cfg)
+    return Segment(out, unsearched, leak, extent | out)
+
+
+def _colour_extent(region: np.ndarray, depth_m: np.ndarray, p: np.ndarray, cfg: SegmentationConfig) -> np.ndarray:
+    """The pixels of the object's colour (``p`` >= 0.5) with depth that join ``region``,
+    through no depth jump, across gaps without depth of up to about ``2 * BRIDGE_PX`` pixels
+    (the sensor loses depth along creases and where a surface turns away). Found at half
+    resolution (it is a measure of how much of the object there is, not of its edge) and
+    returned at full. Box-sized arrays."""
+    h, w = region.shape
+    region, depth_m, p = region[::2, ::2], depth_m[::2, ::2], p[::2, ::2]
+    valid = valid_depth(depth_m)
+    # A depth edge that is not beside missing depth is a jump between two surfaces.
+    beside_missing = cv2.dilate((~valid).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    jump = depth_edges(depth_m, cfg) & ~beside_missing
+    like = valid & (p >= 0.5) & ~jump
+    reach = BRIDGE_PX // 2
+    near = cv2.dilate(like.astype(np.uint8), np.ones((2 * reach + 1,) * 2, np.uint8)).astype(bool)
+    passable = like | (~valid & near) | region
+    n, labels = cv2.connectedComponents(passable.astype(np.uint8), connectivity=8)
+    joined = np.bincount(labels[region], minlength=n) > 0
+    joined[0] = False
+    half = joined[labels] & like
+    return np.repeat(np.repeat(half, 2, axis=0), 2, axis=1)[:h, :w]
+
+
+def _uncovered(pred: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Where the prediction ``pred`` lies over the surroundings, given ``p``, each pixel's
+    probability of being the object by its colour: areas clearly of the surroundings' colour
+    inside it that are wider than a print's patches (where the cloth was before it moved),
+    or that join the surroundings' colour outside it (a corner lifted and folded back bares
+    the table under where it lay, often in a strip narrower than a patch), each with its
+    blurred rim, where its colour is more the surroundings' than not; not a print's patches
+    of a similar colour inside the cloth. A patch of the table's colour on the cloth's very
+    edge joins the table too and goes. Box-sized bool."""
+    unlike = p < 0.15
+    inside = pred & unlike
+    wide = cv2.morphologyEx(inside.astype(np.uint8), cv2.MORPH_OPEN, np.ones((15, 15), np.uint8)).astype(bool)
+    # Open a little first, so that a patch touching the cloth's edge joins the outside only
+    # through a band at least that wide, not through the few pixels of its rim.
+    solid = cv2.morphologyEx(unlike.astype(np.uint8), cv2.MORPH_OPEN, np.ones((5, 5), np.uint8)).astype(bool)
+    n, labels = cv2.connectedComponents(solid.astype(np.uint8), connectivity=4)
+    outside = np.bincount(labels[~pred & solid], minlength=n)
+    within = np.bincount(labels[inside & solid], minlength=n)
+    joined = outside >= np.maximum(within, 25)  # a real share of it lies outside the prediction
+    joined[0] = False
+    uncovered = wide | (inside & joined[labels])
+    # The colour lookup blurs over a few pixels: take the rim, as far as it looks more like
+    # the surroundings than the object.
+    rim = pred & (p < 0.5)
+    for _ in range(3):
+        uncovered |= rim & cv2.dilate(uncovered.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    return uncovered
 
 
 def _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg):

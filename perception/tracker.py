@@ -605,7 +605,8 @@ class MeshTracker:
         V = res.vertices
         visible = self._states(V, frame) == VISIBLE
         carried, last_seen = self._carried(V, visible, frame)
-        assessment = self._assess(V, frame, visible, mask, segment.leak, carried)
+        extent = None if segment.extent is None else self._object_only(segment.extent, frame)
+        assessment = self._assess(V, frame, visible, mask, segment.leak, carried, extent)
         if assessment.lost(cfg.lost_confidence):
             log.debug("frame %d: re-acquisition rejected (%s)", frame.seq, assessment.as_dict())
             return None
@@ -802,7 +803,8 @@ class MeshTracker:
             energies["inliers"] = float(corr.weights.sum())
         visible = self._states(V, frame) == VISIBLE
         carried, self._last_seen = self._carried(V, visible, frame)
-        assessment = self._assess(V, frame, visible, mask, segment.leak, carried)
+        extent = None if segment.extent is None else self._object_only(segment.extent, frame)
+        assessment = self._assess(V, frame, visible, mask, segment.leak, carried, extent)
         return self._estimate(frame, V, energies, iterations, assessment, t0, visible)
 
     def _carried(self, V: np.ndarray, visible: np.ndarray, frame: RGBDFrame) -> tuple[float, np.ndarray]:
@@ -820,16 +822,16 @@ class MeshTracker:
     # -- outputs -------------------------------------------------------------------------
 
     def _assess(self, V: np.ndarray, frame: RGBDFrame, visible: np.ndarray, object_mask: np.ndarray,
-                leak: float = 0.0, carried: float = 0.0) -> Assessment:
+                leak: float = 0.0, carried: float = 0.0, extent: np.ndarray | None = None) -> Assessment:
         """The evidence for estimate ``V`` (N, 3) in ``frame`` (``perception.confidence``);
-        ``leak`` is the segmentation's (``perception.segmentation.Segment``), ``carried`` the
-        share of the mesh moved far while hidden (``_carried``)."""
+        ``leak`` and ``extent`` are the segmentation's (``perception.segmentation.Segment``),
+        ``carried`` the share of the mesh moved far while hidden (``_carried``)."""
         K = frame.camera.K
         likeness = 1.0
         if self._appearance is not None:
             likeness = self._appearance.likeness(frame.rgb, V, self.mesh.faces, K, visible)
         assessment = assess(V, self._edges, self._rest_lengths, visible, frame.depth_m, object_mask,
-                            K, self.config.confidence_tol_m, likeness, leak, carried)
+                            K, self.config.confidence_tol_m, likeness, leak, carried, extent)
         self.last_assessment = assessment
         return assessment
 

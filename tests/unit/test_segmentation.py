@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from ipc.messages import CameraInfo
+from perception.colour_model import ColourModel
 from perception.geometry import rays
 from perception.segmentation import SegmentationConfig, find_object, segment_tracked, split_contour
 
@@ -83,6 +84,27 @@ def test_tracked_segmentation_reports_a_surface_that_goes_on_beyond_the_search()
     segment = segment_tracked(depth, cloth, (1.25, 1.35), SegmentationConfig())
     assert segment.mask.sum() > 1.5 * cloth.sum() and segment.leak > 0.6
     assert segment.unsearched[0, 0] and not segment.unsearched[cloth].any()
+
+
+def test_tracked_segmentation_leaves_out_the_table_a_lifted_corner_bared():
+    """A pink printed cloth on a grey table at its own depth; its corner was lifted, and the
+    prediction still covers an 8-pixel strip of bare table beside it (narrower than a print's
+    patch). The strip is left out; a print patch of the table's own grey inside the cloth is not."""
+    rng = np.random.default_rng(0)
+    depth = np.full((H, W), 1.3, np.float32)  # the table, and the cloth lying on it
+    rgb = np.clip(rng.normal(120, 4, (H, W, 3)), 0, 255).astype(np.uint8)
+    cloth = np.zeros((H, W), bool)
+    cloth[60:180, 80:240] = True
+    rgb[cloth] = (230, 150, 170)
+    rgb[100:112, 120:132] = 120  # a grey print patch, 12 px wide
+    rgb[140:150, 180:200] = (40, 40, 160)
+    colour = ColourModel(rgb, cloth)
+    strip = np.zeros((H, W), bool)
+    strip[60:180, 240:248] = True  # where the lifted corner lay
+    segment = segment_tracked(depth, cloth | strip, (1.28, 1.32), SegmentationConfig(), rgb=rgb, colour=colour)
+    assert (segment.mask & strip).sum() < 0.1 * strip.sum()
+    assert segment.mask[100:112, 120:132].mean() > 0.9
+    assert iou(segment.mask, cloth) > 0.95
 
 
 def test_tracked_segmentation_empty_when_object_gone():
