@@ -84,11 +84,26 @@ def valid_depth(depth_m: np.ndarray) -> np.ndarray:
 
 def depth_edges(depth_m: np.ndarray, cfg: SegmentationConfig) -> np.ndarray:
     """(H, W) bool: pixels next to a depth discontinuity (or to missing depth)."""
+    return _steps(depth_m, cfg, into_missing=True)
+
+
+def _jumps(depth_m: np.ndarray, cfg: SegmentationConfig) -> np.ndarray:
+    """(H, W) bool: pixels with depth next to a pixel with depth on another surface."""
+    return _steps(depth_m, cfg, into_missing=False)
+
+
+def _steps(depth_m: np.ndarray, cfg: SegmentationConfig, into_missing: bool) -> np.ndarray:
+    """The pixels on both sides of each step in depth between neighbours of more than
+    ``edge_jump_m + edge_jump_rel * depth``; with ``into_missing``, a step from missing depth
+    (left or above) to measured depth counts too."""
     d = np.where(valid_depth(depth_m), depth_m, 0.0).astype(np.float32)
     tol = cfg.edge_jump_m + cfg.edge_jump_rel * d
+    dx = (np.abs(np.diff(d, axis=1)) > np.minimum(tol[:, 1:], tol[:, :-1])) & (d[:, 1:] > 0)
+    dy = (np.abs(np.diff(d, axis=0)) > np.minimum(tol[1:, :], tol[:-1, :])) & (d[1:, :] > 0)
+    if not into_missing:
+        dx &= d[:, :-1] > 0
+        dy &= d[:-1, :] > 0
     edge = np.zeros(d.shape, bool)
-    dx = np.abs(np.diff(d, axis=1)) > np.minimum(tol[:, 1:], tol[:, :-1]) + (d[:, 1:] == 0) * 1e9
-    dy = np.abs(np.diff(d, axis=0)) > np.minimum(tol[1:, :], tol[:-1, :]) + (d[1:, :] == 0) * 1e9
     edge[:, 1:] |= dx
     edge[:, :-1] |= dx
     edge[1:, :] |= dy
@@ -174,10 +189,7 @@ def _colour_extent(region: np.ndarray, depth_m: np.ndarray, p: np.ndarray, cfg: 
     h, w = region.shape
     region, depth_m, p = region[::2, ::2], depth_m[::2, ::2], p[::2, ::2]
     valid = valid_depth(depth_m)
-    # A depth edge that is not beside missing depth is a jump between two surfaces.
-    beside_missing = cv2.dilate((~valid).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
-    jump = depth_edges(depth_m, cfg) & ~beside_missing
-    like = valid & (p >= 0.5) & ~jump
+    like = valid & (p >= 0.5) & ~_jumps(depth_m, cfg)
     reach = BRIDGE_PX // 2
     near = cv2.dilate(like.astype(np.uint8), np.ones((2 * reach + 1,) * 2, np.uint8)).astype(bool)
     passable = like | (~valid & near) | region

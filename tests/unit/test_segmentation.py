@@ -107,6 +107,33 @@ def test_tracked_segmentation_leaves_out_the_table_a_lifted_corner_bared():
     assert iou(segment.mask, cloth) > 0.95
 
 
+def test_the_extent_finds_the_part_of_the_object_the_prediction_lost():
+    """A pink cloth on a grey wall, parted by a crease without depth; the mesh was squeezed
+    into the upper part, so the search misses most of the lower part. The mask stops at the
+    crease; the extent goes on over the lower part, but not onto a pink box in front of
+    the cloth (a depth jump)."""
+    rng = np.random.default_rng(1)
+    depth = np.full((H, W), 2.0, np.float32)
+    rgb = np.clip(rng.normal(120, 4, (H, W, 3)), 0, 255).astype(np.uint8)
+    upper, lower = np.zeros((H, W), bool), np.zeros((H, W), bool)
+    upper[30:100, 100:200] = True
+    lower[104:220, 100:200] = True
+    for part in (upper, lower):
+        depth[part] = 1.2
+        rgb[part] = (230, 150, 170)
+    depth[100:104, 100:200] = 0.0  # the crease
+    colour = ColourModel(rgb, upper | lower)
+    box = np.zeros((H, W), bool)
+    box[30:100, 200:240] = True  # touching the cloth, 30 cm in front of it
+    depth[box], rgb[box] = 0.9, (230, 150, 170)
+    segment = segment_tracked(depth, upper, (1.18, 1.22), SegmentationConfig(), rgb=rgb, colour=colour)
+    assert not segment.mask[lower].any()
+    assert segment.extent[lower].mean() > 0.9 and segment.extent[upper].mean() > 0.9
+    assert segment.extent[box].mean() < 0.05
+    # without colour to tell the object from the rest, there is no extent
+    assert segment_tracked(depth, upper, (1.18, 1.22), SegmentationConfig()).extent is None
+
+
 def test_tracked_segmentation_empty_when_object_gone():
     depth, truth, _ = scene_depth(cloth=False)
     _, predicted, _ = scene_depth()
