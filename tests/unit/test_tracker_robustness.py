@@ -292,3 +292,24 @@ def test_a_part_carried_far_out_of_sight_is_not_vouched_for(tex, hidden_share):
         assert min(late) > 0.8, confidences
     else:
         assert max(late) < 0.5, confidences
+
+
+
+def test_a_mesh_on_part_of_the_sheet_is_not_vouched_for_the_sheet():
+    """The mesh covers the upper third of a plain sheet, and a crease without depth parts it
+    from the rest (as when a lifted cloth's mesh stays on the part that was followed while
+    the rest hangs on below). The search around the mesh stops at the crease, and the mesh
+    lies right where it is: only the sheet's colour, seen on past the crease, shows how
+    much of the sheet the mesh does not cover."""
+    plain = texture(np.random.default_rng(0), textured=False)
+    first = sheet(np.zeros(3), plain, 0)
+    rows = np.nonzero((first.depth_m > 0) & (first.depth_m < 2.0))[0]
+    cut = int(rows.min() + (rows.max() - rows.min()) / 3)
+    part = (first.depth_m > 0) & (first.depth_m < 2.0)
+    part[cut:] = False
+    tracker = MeshTracker(TrackerConfig(features="klt"))
+    tracker.initialise(first, mask=part)
+    frame = sheet(np.zeros(3), plain, 1)
+    frame.depth_m[cut + 1:cut + 5] = 0.0  # the crease
+    e = tracker.track(frame)
+    assert e.confidence < 0.5, tracker.last_assessment
