@@ -31,6 +31,7 @@ EXTENT_REACH = 4
 #: gaps without depth up to twice this (pixels) do not part the extent
 BRIDGE_PX = 5
 
+
 @dataclass(frozen=True)
 class Segment:
     """The object found around a prediction.
@@ -140,8 +141,10 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
         found by depth runs on beyond the search (a cloth on a table is continuous in depth
         with the table) and colour tells the object from its surroundings, pixels that look
         like the surroundings are left out: outside the prediction
-        unless they are more likely the object than not, inside it only in areas wider than
-        a print's patches where they are clearly not.
+        unless they are more likely the object than not, inside it only where they are
+        clearly not, in areas wider than a print's patches or joined to the surroundings
+        outside it (``_uncovered``). With colour, the Segment also has the object's extent
+        beyond the search (``Segment.extent``).
     returns Segment; its mask is empty when nothing of the object is seen
     """
     out = np.zeros(predicted_mask.shape, bool)
