@@ -26,10 +26,12 @@ from perception.raster import bounding_box
 log = logging.getLogger(__name__)
 
 
-#: how far beyond the prediction a tracked object's extent is looked for, in search margins
+#: a tracked object's extent is looked for within the prediction's bounding box grown by
+#: this many search margins
 EXTENT_REACH = 4
-#: gaps without depth up to twice this (pixels) do not part the extent
-BRIDGE_PX = 5
+#: gaps without depth up to this wide (pixels) do not part the extent, when the surface has
+#: about the same depth on both sides
+BRIDGE_PX = 8
 
 
 @dataclass(frozen=True)
@@ -43,7 +45,7 @@ class Segment:
         (near 0 when the object lies within the search; high when it is continuous with a
         surface that goes on, such as a table the cloth lies on)
     extent : (H, W) bool, the mask and the pixels of the object's colour joined to it beyond
-        the search (``EXTENT_REACH`` margins at most); None when colour cannot tell the
+        the search (within the prediction's box grown by ``EXTENT_REACH`` margins); None when colour cannot tell the
         object from its surroundings. A mesh that lost part of the object (squeezed into what
         it still covers while the rest moved on) predicts a search that misses that part, and
         only the extent still sees it.
@@ -127,7 +129,8 @@ def _grow(region: np.ndarray, candidate: np.ndarray) -> np.ndarray:
 
 def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tuple[float, float],
                     cfg: SegmentationConfig = SegmentationConfig(), hidden_mask: np.ndarray | None = None,
-                    rgb: np.ndarray | None = None, colour: ColourModel | None = None) -> Segment:
+                    rgb: np.ndarray | None = None, colour: ColourModel | None = None,
+                    not_object: np.ndarray | None = None) -> Segment:
     """Object mask in a frame, given where the object is predicted to be.
 
     depth_m : (H, W) float32 metres, 0/NaN missing
@@ -145,6 +148,8 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
         clearly not, in areas wider than a print's patches or joined to the surroundings
         outside it (``_uncovered``). With colour, the Segment also has the object's extent
         beyond the search (``Segment.extent``).
+    not_object : (H, W) bool, pixels that cannot be the object (a known occluder, the empty
+        workspace), or None; the extent does not reach across them
     returns Segment; its mask is empty when nothing of the object is seen
     """
     out = np.zeros(predicted_mask.shape, bool)
@@ -169,7 +174,7 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
         return Segment(out, unsearched, leak)
     # Colour tells the object from its surroundings: look at it over the wider box that the
     # extent needs, once.
-    Y0, Y1, X0, X1 = bounding_box(predicted_mask, pad=EXTENT_REACH * cfg.search_margin_px)
+    Y0, Y1, X0, X1 = bounding_box(predicted_mask, pad=max(EXTENT_REACH * cfg.search_margin_px, cfg.search_margin_px + 1))
     p_wide = colour.probability(rgb[Y0:Y1, X0:X1])
     if leak > 0.1:
         # Depth runs on beyond the search: the object lies on something of its own depth
@@ -179,23 +184,42 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
         region, leak = _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg)
     out[y0:y1, x0:x1] = region
     extent = np.zeros(predicted_mask.shape, bool)
-    extent[Y0:Y1, X0:X1] = _colour_extent(out[Y0:Y1, X0:X1], depth_m[Y0:Y1, X0:X1], p_wide, cfg)
+    allowed = None if not_object is None else ~not_object[Y0:Y1, X0:X1]
+    extent[Y0:Y1, X0:X1] = _colour_extent(out[Y0:Y1, X0:X1], depth_m[Y0:Y1, X0:X1], p_wide, cfg, allowed)
     return Segment(out, unsearched, leak, extent | out)
 
 
-def _colour_extent(region: np.ndarray, depth_m: np.ndarray, p: np.ndarray, cfg: SegmentationConfig) -> np.ndarray:
+def _colour_extent(region: np.ndarray, depth_m: np.ndarray, p: np.ndarray, cfg: SegmentationConfig,
+                   allowed: np.ndarray | None = None) -> np.ndarray:
     """The pixels of the object's colour (``p`` >= 0.5) with depth that join ``region``,
-    through no depth jump, across gaps without depth of up to about ``2 * BRIDGE_PX`` pixels
-    (the sensor loses depth along creases and where a surface turns away). Found at half
-    resolution (it is a measure of how much of the object there is, not of its edge) and
-    returned at full. Box-sized arrays."""
+    through no depth jump, across gaps without depth up to about ``BRIDGE_PX`` wide with
+    the surface at about the same depth on both sides (the sensor loses depth along creases
+    and where a surface turns away; a band without depth beside a nearer hand is a jump),
+    and only over ``allowed`` pixels (None: all). Found at half resolution (it is a measure
+    of how much of the object there is, not of its edge) and returned at full. Box-sized
+    arrays."""
     h, w = region.shape
     region, depth_m, p = region[::2, ::2], depth_m[::2, ::2], p[::2, ::2]
+    if allowed is not None:
+        allowed = allowed[::2, ::2]
+        region = region & allowed
     valid = valid_depth(depth_m)
     like = valid & (p >= 0.5) & ~_jumps(depth_m, cfg)
-    reach = BRIDGE_PX // 2
-    near = cv2.dilate(like.astype(np.uint8), np.ones((2 * reach + 1,) * 2, np.uint8)).astype(bool)
-    passable = like | (~valid & near) | region
+    if allowed is not None:
+        like &= allowed
+    # A gap pixel passes when the object's colour with depth lies within reach of it, all
+    # at about one depth: the nearest and farthest such depths around it differ by less
+    # than a jump.
+    reach = BRIDGE_PX // 4  # each side's half of the gap, at half resolution
+    window = np.ones((2 * reach + 1,) * 2, np.uint8)
+    d = np.where(like, depth_m, 0.0).astype(np.float32)
+    farthest = cv2.dilate(d, window)
+    nearest = cv2.erode(np.where(like, d, np.float32(np.inf)), window)
+    level = farthest - nearest < cfg.edge_jump_m + cfg.edge_jump_rel * farthest
+    gap = ~valid & level & np.isfinite(nearest)
+    if allowed is not None:
+        gap &= allowed
+    passable = like | gap | region
     n, labels = cv2.connectedComponents(passable.astype(np.uint8), connectivity=8)
     joined = np.bincount(labels[region], minlength=n) > 0
     joined[0] = False

@@ -588,9 +588,11 @@ class MeshTracker:
         V0 = found.apply(self._good_V)
         h, w = frame.depth_m.shape
         z = V0[:, 2]
+        excluded = self._not_object(frame)
         segment = segment_tracked(frame.depth_m, faces_mask(project(V0, K), faces, (h, w)),
-                                  (float(z.min()), float(z.max())), cfg.segmentation, rgb=frame.rgb, colour=self._colour)
-        mask = self._object_only(segment.mask, frame)
+                                  (float(z.min()), float(z.max())), cfg.segmentation, rgb=frame.rgb, colour=self._colour,
+                                  not_object=excluded)
+        mask = segment.mask if excluded is None else segment.mask & ~excluded
         if not mask.any():
             return None
         obs = observe(frame, mask, cfg.depth_window_px, grey=grey, unsearched=segment.unsearched)
@@ -605,7 +607,7 @@ class MeshTracker:
         V = res.vertices
         visible = self._states(V, frame) == VISIBLE
         carried, last_seen = self._carried(V, visible, frame)
-        extent = None if segment.extent is None else self._object_only(segment.extent, frame)
+        extent = segment.extent if segment.extent is None or excluded is None else segment.extent & ~excluded
         assessment = self._assess(V, frame, visible, mask, segment.leak, carried, extent)
         if assessment.lost(cfg.lost_confidence):
             log.debug("frame %d: re-acquisition rejected (%s)", frame.seq, assessment.as_dict())
@@ -621,13 +623,19 @@ class MeshTracker:
         return self._estimate(frame, V, res.energies, res.iterations, assessment, t0, visible)
 
     def _object_only(self, mask: np.ndarray, frame: RGBDFrame) -> np.ndarray:
-        """``mask`` (H, W) bool less what the object cannot be: pixels of a known occluder
-        (``frame.occluder_mask``) and, with a background, pixels that do not differ from it."""
-        if frame.occluder_mask is not None:
-            mask = mask & ~frame.occluder_mask
+        """``mask`` (H, W) bool less what the object cannot be (``_not_object``)."""
+        excluded = self._not_object(frame)
+        return mask if excluded is None else mask & ~excluded
+
+    def _not_object(self, frame: RGBDFrame) -> np.ndarray | None:
+        """(H, W) bool, what the object cannot be: pixels of a known occluder
+        (``frame.occluder_mask``) and, with a background, pixels that do not differ from it;
+        None when neither is known."""
+        excluded = frame.occluder_mask
         if self._background is not None:
-            mask = mask & differs_from_background(frame, self._background)
-        return mask
+            same = ~differs_from_background(frame, self._background)
+            excluded = same if excluded is None else excluded | same
+        return excluded
 
     def _reinitialise_on_segment(self, frame: RGBDFrame, t0: float) -> MeshEstimate | None:
         """A new mesh on the object segmented afresh (by its colour, else by depth); the
@@ -757,9 +765,10 @@ class MeshTracker:
         state = self._states(V_pred, frame)
         behind = np.any(state[faces] == OCCLUDED, axis=1)
         hidden_mask = faces_mask(project(V_pred, K), faces[behind], pred_mask.shape) if behind.any() else None
+        excluded = self._not_object(frame)
         segment = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation,
-                                  hidden_mask, frame.rgb, self._colour)
-        mask = self._object_only(segment.mask, frame)
+                                  hidden_mask, frame.rgb, self._colour, excluded)
+        mask = segment.mask if excluded is None else segment.mask & ~excluded
         if not mask.any():
             log.debug("frame %d: object not seen", frame.seq)
             self._V_prev, self._V = self._V, self._V.copy()
@@ -803,7 +812,7 @@ class MeshTracker:
             energies["inliers"] = float(corr.weights.sum())
         visible = self._states(V, frame) == VISIBLE
         carried, self._last_seen = self._carried(V, visible, frame)
-        extent = None if segment.extent is None else self._object_only(segment.extent, frame)
+        extent = segment.extent if segment.extent is None or excluded is None else segment.extent & ~excluded
         assessment = self._assess(V, frame, visible, mask, segment.leak, carried, extent)
         return self._estimate(frame, V, energies, iterations, assessment, t0, visible)
 

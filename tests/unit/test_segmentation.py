@@ -107,12 +107,9 @@ def test_tracked_segmentation_leaves_out_the_table_a_lifted_corner_bared():
     assert iou(segment.mask, cloth) > 0.95
 
 
-def test_the_extent_finds_the_part_of_the_object_the_prediction_lost():
-    """A pink cloth on a grey wall, parted by a crease without depth; the mesh was squeezed
-    into the upper part, so the search misses most of the lower part. The mask stops at the
-    crease; the extent goes on over the lower part, but not onto a pink box in front of
-    the cloth (a depth jump)."""
-    rng = np.random.default_rng(1)
+def creased_sheet(rng):
+    """A pink cloth 1.2 m away on a grey wall 2 m away, parted by a crease without depth
+    (rows 100-104) into an upper and a lower part: depth, rgb, upper, lower, colour model."""
     depth = np.full((H, W), 2.0, np.float32)
     rgb = np.clip(rng.normal(120, 4, (H, W, 3)), 0, 255).astype(np.uint8)
     upper, lower = np.zeros((H, W), bool), np.zeros((H, W), bool)
@@ -122,16 +119,41 @@ def test_the_extent_finds_the_part_of_the_object_the_prediction_lost():
         depth[part] = 1.2
         rgb[part] = (230, 150, 170)
     depth[100:104, 100:200] = 0.0  # the crease
-    colour = ColourModel(rgb, upper | lower)
+    return depth, rgb, upper, lower, ColourModel(rgb, upper | lower)
+
+
+@pytest.mark.parametrize("gap_px", [0, 4])
+def test_the_extent_finds_the_part_of_the_object_the_prediction_lost(gap_px):
+    """The mesh was squeezed into the upper part, so the search misses most of the lower
+    part. The mask stops at the crease; the extent goes on over the lower part, but not onto
+    a pink box 30 cm in front of the cloth, touching it or beyond a band without depth."""
+    depth, rgb, upper, lower, colour = creased_sheet(np.random.default_rng(1))
     box = np.zeros((H, W), bool)
-    box[30:100, 200:240] = True  # touching the cloth, 30 cm in front of it
+    box[30:100, 200 + gap_px:240] = True
     depth[box], rgb[box] = 0.9, (230, 150, 170)
+    depth[30:100, 200:200 + gap_px] = 0.0
     segment = segment_tracked(depth, upper, (1.18, 1.22), SegmentationConfig(), rgb=rgb, colour=colour)
     assert not segment.mask[lower].any()
     assert segment.extent[lower].mean() > 0.9 and segment.extent[upper].mean() > 0.9
     assert segment.extent[box].mean() < 0.05
     # without colour to tell the object from the rest, there is no extent
     assert segment_tracked(depth, upper, (1.18, 1.22), SegmentationConfig()).extent is None
+
+
+def test_the_extent_does_not_run_through_what_cannot_be_the_object():
+    """A robot arm of the cloth's colour, at its depth, joins the cloth to a poster of that
+    colour: with the arm's mask given, the poster stays out of the extent."""
+    depth, rgb, upper, lower, colour = creased_sheet(np.random.default_rng(2))
+    arm, poster = np.zeros((H, W), bool), np.zeros((H, W), bool)
+    arm[30:60, 200:250] = True
+    poster[20:120, 250:310] = True
+    for part in (arm, poster):
+        depth[part], rgb[part] = 1.2, (230, 150, 170)
+    segment = segment_tracked(depth, upper, (1.18, 1.22), SegmentationConfig(), rgb=rgb, colour=colour)
+    assert segment.extent[poster].mean() > 0.9  # nothing says the arm is not the cloth
+    segment = segment_tracked(depth, upper, (1.18, 1.22), SegmentationConfig(), rgb=rgb, colour=colour,
+                              not_object=arm)
+    assert segment.extent[poster].mean() < 0.05 and segment.extent[lower].mean() > 0.9
 
 
 def test_tracked_segmentation_empty_when_object_gone():
