@@ -172,17 +172,15 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
     if colour is None or rgb is None or not colour.informative:
         out[y0:y1, x0:x1] = region
         return Segment(out, unsearched, leak)
-    # Colour tells the object from its surroundings: look at it over the wider box that the
-    # extent needs, once.
-    Y0, Y1, X0, X1 = bounding_box(predicted_mask, pad=max(EXTENT_REACH * cfg.search_margin_px, cfg.search_margin_px + 1))
-    p_wide = colour.probability(rgb[Y0:Y1, X0:X1])
     if leak > 0.1:
         # Depth runs on beyond the search: the object lies on something of its own depth
         # (a table). Colour may tell them apart.
-        p = p_wide[y0 - Y0:y1 - Y0, x0 - X0:x1 - X0]
+        p = colour.probability(rgb[y0:y1, x0:x1])
         candidate &= (p >= 0.5) | (pred & ~_uncovered(pred, p))
         region, leak = _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg)
     out[y0:y1, x0:x1] = region
+    Y0, Y1, X0, X1 = bounding_box(predicted_mask, pad=EXTENT_REACH * cfg.search_margin_px)
+    p_wide = colour.probability(rgb[Y0:Y1, X0:X1])
     extent = np.zeros(predicted_mask.shape, bool)
     allowed = None if not_object is None else ~not_object[Y0:Y1, X0:X1]
     extent[Y0:Y1, X0:X1] = _colour_extent(out[Y0:Y1, X0:X1], depth_m[Y0:Y1, X0:X1], p_wide, cfg, allowed)
