@@ -149,7 +149,8 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
         outside it (``_uncovered``). With colour, the Segment also has the object's extent
         beyond the search (``Segment.extent``).
     not_object : (H, W) bool, pixels that cannot be the object (a known occluder, the empty
-        workspace), or None; the extent does not reach across them
+        workspace), or None; they are left out of the mask, and the extent does not reach
+        across them
     returns Segment; its mask is empty when nothing of the object is seen
     """
     out = np.zeros(predicted_mask.shape, bool)
@@ -169,9 +170,10 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
     d = np.where(valid, depth, 0.0)
     candidate = valid & search & (d > z_range[0] - cfg.depth_band_m) & (d < z_range[1] + cfg.depth_band_m)
     region, leak = _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg)
+    keep = None if not_object is None else ~not_object
     if colour is None or rgb is None or not colour.informative:
         out[y0:y1, x0:x1] = region
-        return Segment(out, unsearched, leak)
+        return Segment(out if keep is None else out & keep, unsearched, leak)
     if leak > 0.1:
         # Depth runs on beyond the search: the object lies on something of its own depth
         # (a table). Colour may tell them apart.
@@ -180,11 +182,16 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
         region, leak = _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg)
     out[y0:y1, x0:x1] = region
     Y0, Y1, X0, X1 = bounding_box(predicted_mask, pad=EXTENT_REACH * cfg.search_margin_px)
+    # Looked up afresh rather than shared with the colour step: the lookup works at half
+    # resolution from its box's corner, and the step keeps its own box's pixels.
     p_wide = colour.probability(rgb[Y0:Y1, X0:X1])
     extent = np.zeros(predicted_mask.shape, bool)
-    allowed = None if not_object is None else ~not_object[Y0:Y1, X0:X1]
+    allowed = None if keep is None else keep[Y0:Y1, X0:X1]
     extent[Y0:Y1, X0:X1] = _colour_extent(out[Y0:Y1, X0:X1], depth_m[Y0:Y1, X0:X1], p_wide, cfg, allowed)
-    return Segment(out, unsearched, leak, extent | out)
+    extent |= out
+    if keep is not None:
+        out, extent = out & keep, extent & keep
+    return Segment(out, unsearched, leak, extent)
 
 
 def _colour_extent(region: np.ndarray, depth_m: np.ndarray, p: np.ndarray, cfg: SegmentationConfig,

@@ -588,11 +588,10 @@ class MeshTracker:
         V0 = found.apply(self._good_V)
         h, w = frame.depth_m.shape
         z = V0[:, 2]
-        excluded = self._not_object(frame)
         segment = segment_tracked(frame.depth_m, faces_mask(project(V0, K), faces, (h, w)),
                                   (float(z.min()), float(z.max())), cfg.segmentation, rgb=frame.rgb, colour=self._colour,
-                                  not_object=excluded)
-        mask = segment.mask if excluded is None else segment.mask & ~excluded
+                                  not_object=self._not_object(frame))
+        mask = segment.mask
         if not mask.any():
             return None
         obs = observe(frame, mask, cfg.depth_window_px, grey=grey, unsearched=segment.unsearched)
@@ -607,8 +606,7 @@ class MeshTracker:
         V = res.vertices
         visible = self._states(V, frame) == VISIBLE
         carried, last_seen = self._carried(V, visible, frame)
-        extent = segment.extent if segment.extent is None or excluded is None else segment.extent & ~excluded
-        assessment = self._assess(V, frame, visible, mask, segment.leak, carried, extent)
+        assessment = self._assess(V, frame, visible, mask, segment.leak, carried, segment.extent)
         if assessment.lost(cfg.lost_confidence):
             log.debug("frame %d: re-acquisition rejected (%s)", frame.seq, assessment.as_dict())
             return None
@@ -765,10 +763,9 @@ class MeshTracker:
         state = self._states(V_pred, frame)
         behind = np.any(state[faces] == OCCLUDED, axis=1)
         hidden_mask = faces_mask(project(V_pred, K), faces[behind], pred_mask.shape) if behind.any() else None
-        excluded = self._not_object(frame)
         segment = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation,
-                                  hidden_mask, frame.rgb, self._colour, excluded)
-        mask = segment.mask if excluded is None else segment.mask & ~excluded
+                                  hidden_mask, frame.rgb, self._colour, self._not_object(frame))
+        mask = segment.mask
         if not mask.any():
             log.debug("frame %d: object not seen", frame.seq)
             self._V_prev, self._V = self._V, self._V.copy()
@@ -812,8 +809,7 @@ class MeshTracker:
             energies["inliers"] = float(corr.weights.sum())
         visible = self._states(V, frame) == VISIBLE
         carried, self._last_seen = self._carried(V, visible, frame)
-        extent = segment.extent if segment.extent is None or excluded is None else segment.extent & ~excluded
-        assessment = self._assess(V, frame, visible, mask, segment.leak, carried, extent)
+        assessment = self._assess(V, frame, visible, mask, segment.leak, carried, segment.extent)
         return self._estimate(frame, V, energies, iterations, assessment, t0, visible)
 
     def _carried(self, V: np.ndarray, visible: np.ndarray, frame: RGBDFrame) -> tuple[float, np.ndarray]:
