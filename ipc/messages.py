@@ -20,7 +20,7 @@ import numpy as np
 
 from ipc import wire
 
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 
 # Wire types shared by several fields.
 _REQUEST_ID = wire.Int(lo=0)  # echoed in the reply
@@ -297,6 +297,14 @@ def _check_request_id(owner: str, value) -> int:
     return _check_count(f"{owner}.request_id", value)
 
 
+def _check_frame_seq(owner: str, value) -> int:
+    """Return ``value`` as an int >= -1 (a frame's ``seq``, or -1 for none in particular);
+    raise ValueError naming ``owner.seq``."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < -1:
+        raise ValueError(f"{owner}.seq: expected a frame seq >= 0 or -1, got {value!r}")
+    return int(value)
+
+
 def _check_number(name: str, value, lo: float = 0.0, hi: float = math.inf, optional: bool = False) -> float | None:
     """Return ``value`` as a finite float in [lo, hi], or None when ``optional`` and it is None.
 
@@ -519,7 +527,8 @@ class AdjacentCornersReply:
 
 @dataclass(frozen=True)
 class InitialiseRequest:
-    """Ask the perception service to build a new mesh on the next frame it receives.
+    """Ask the perception service to build a new mesh, on the frame ``seq`` or on the next
+    frame it receives.
 
     request_id : int >= 0, echoed in the reply
     mask : (H, W) uint8, non-zero on the object in that frame (H, W of the frame), or
@@ -528,14 +537,19 @@ class InitialiseRequest:
         From then on (until the next InitialiseRequest or a reset) only what differs from
         it can be the object, so that a cloth lifted off a table is not held to the table
         by its depth. The robot takes it before the cloth is put down, or knows it.
+    seq : the ``seq`` of the frame to build the mesh on (the frame the mask was made
+        from): one the service received recently, or one still to come; -1 for the next
+        frame the service receives
     """
 
     request_id: int = wire.field(_REQUEST_ID, default=0)
     mask: np.ndarray | None = wire.field(wire.Optional(wire.Array(("uint8",), 2)), default=None)
     background: RGBDFrame | None = wire.field(wire.Optional(wire.Nested(RGBDFrame)), default=None)
+    seq: int = wire.field(wire.Int(lo=-1), default=-1)
 
     def __post_init__(self):
         object.__setattr__(self, "request_id", _check_request_id("InitialiseRequest", self.request_id))
+        object.__setattr__(self, "seq", _check_frame_seq("InitialiseRequest", self.seq))
         if self.mask is None:
             return
         mask = np.asarray(self.mask)
@@ -596,9 +610,7 @@ class OccluderMaskRequest:
 
     def __post_init__(self):
         object.__setattr__(self, "request_id", _check_request_id("OccluderMaskRequest", self.request_id))
-        if isinstance(self.seq, bool) or not isinstance(self.seq, (int, np.integer)) or self.seq < -1:
-            raise ValueError(f"OccluderMaskRequest.seq: expected a frame seq >= 0 or -1, got {self.seq!r}")
-        object.__setattr__(self, "seq", int(self.seq))
+        object.__setattr__(self, "seq", _check_frame_seq("OccluderMaskRequest", self.seq))
         if self.mask is not None:
             mask = np.asarray(self.mask)
             if mask.dtype == np.bool_:

@@ -39,6 +39,7 @@ import logging
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -434,6 +435,8 @@ class Subscriber:
         event of the stream is reported once.
         Both callbacks run on the receiver thread, in the order the events happened: keep them short.
     hwm, limits, curve : queue size, decoder caps, CurveClient or None
+    keep_recent : how many data messages no longer waiting (taken by ``recv_latest``, or
+        skipped for a newer one) to keep for ``recent()``, newest last; 0 keeps none
 
     Every message is decoded on the receiver thread as it arrives, so a malformed one is
     counted whether or not a newer one replaces it. Counters (ints, read any time):
@@ -467,9 +470,12 @@ class Subscriber:
         hwm: int = HWM,
         limits: Limits = DEFAULT_LIMITS,
         curve: CurveClient | None = None,
+        keep_recent: int = 0,
     ):
         if not (math.isfinite(stale_after_s) and stale_after_s > 0):
             raise ValueError(f"Subscriber.stale_after_s: expected a positive number, got {stale_after_s}")
+        if isinstance(keep_recent, bool) or not isinstance(keep_recent, int) or keep_recent < 0:
+            raise ValueError(f"Subscriber.keep_recent: expected a non-negative integer, got {keep_recent!r}")
         known = set(MESSAGE_TYPES.values())
         if accept is not None and (not accept or any(cls not in known for cls in accept)):
             raise ValueError(f"Subscriber.accept: expected message classes or None, got {accept!r}")
@@ -485,6 +491,7 @@ class Subscriber:
         self._open()
         self._cond = threading.Condition()
         self._latest = None
+        self._recent: deque = deque(maxlen=keep_recent)
         self.data_arrived_at: float | None = None
         self.taken_arrived_at: float | None = None
         self._last_heartbeat: Heartbeat | None = None
@@ -529,7 +536,18 @@ class Subscriber:
                 self._cond.wait(remaining)
             msg, self._latest = self._latest, None
             self.taken_arrived_at = self.data_arrived_at
+            self._keep(msg)
         return msg
+
+    def recent(self) -> list:
+        """The last ``keep_recent`` data messages taken or skipped, oldest first (not the
+        one still waiting for ``recv_latest``)."""
+        with self._cond:
+            return list(self._recent)
+
+    def _keep(self, msg) -> None:
+        if self._recent.maxlen:
+            self._recent.append(msg)
 
     @property
     def age_s(self) -> float:
@@ -634,6 +652,7 @@ class Subscriber:
         with self._cond:
             if self._latest is not None:
                 self.skipped += 1
+                self._keep(self._latest)
             self._latest = msg
             self.data_arrived_at = now
             self._cond.notify_all()

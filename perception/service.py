@@ -41,6 +41,11 @@ from perception.viewer import RerunViewer
 
 log = logging.getLogger(__name__)
 
+#: Frames the service keeps after taking or skipping them, so that an InitialiseRequest can
+#: name one by its seq: a third of a second of a 30 Hz camera, the time a controller takes
+#: to make a mask of a frame it received (about 20 MB of 640x480 frames).
+RECENT_FRAMES = 10
+
 #: Estimates over which StatusReply summarises latency and tracking time: a few seconds
 #: at camera rates, so the figures follow a change of load, and enough for a 99th percentile.
 RECENT_ESTIMATES = 100
@@ -102,7 +107,8 @@ class PerceptionService:
         try:
             server, client = (config.curve.server, config.curve.client) if config.curve else (None, None)
             self._frames = Subscriber(config.frames, accept=(RGBDFrame,), stale_after_s=config.stale_after_s,
-                                      on_liveness=self._on_liveness, on_restart=self._on_restart, curve=client)
+                                      on_liveness=self._on_liveness, on_restart=self._on_restart, curve=client,
+                                      keep_recent=RECENT_FRAMES)
             self._closers.append(self._frames.close)
             self._estimates = Publisher(config.estimates, source="perception", heartbeat_period_s=config.heartbeat_period_s,
                                         curve=server)
@@ -141,13 +147,29 @@ class PerceptionService:
         if frame.seq < self.core.last_seq and self.core.state in ("tracking", "lost"):
             self._seq_went_back_at = time.monotonic()
             self.core.discontinuity(f"frame seq went back from {self.core.last_seq} to {frame.seq}")
+        if 0 <= self.core.initialise_seq < frame.seq:
+            # The frame to initialise on was skipped for this newer one: build the mesh on
+            # it first (if it is still held), then track this frame from there.
+            self._initialise_on_held(self.core.initialise_seq)
         estimate = self.core.handle_frame(frame)
+        self._publish(frame, estimate, arrived_at)
+        return estimate
+
+    def _initialise_on_held(self, seq: int) -> None:
+        """Hand the core the frame ``seq`` again, if it is among the frames held."""
+        earlier = next((f for f in self._frames.recent() if f.seq == seq), None)
+        if earlier is not None:
+            self._publish(earlier, self.core.handle_frame(earlier, again=True))
+
+    def _publish(self, frame: RGBDFrame, estimate: MeshEstimate | None, arrived_at: float | None = None) -> None:
+        """Publish ``estimate`` (if any) of ``frame``; its latency counts when ``arrived_at``
+        (``time.monotonic()`` of the frame's arrival) is given."""
         if estimate is not None:
             self._estimates.publish(estimate)
-            self._recent.append(((time.monotonic() - arrived_at) * 1000.0, estimate.timing_ms))
+            if arrived_at is not None:
+                self._recent.append(((time.monotonic() - arrived_at) * 1000.0, estimate.timing_ms))
         if self._viewer is not None:
             self._viewer.show(frame, estimate)
-        return estimate
 
     # Subscriber callbacks: they run on its receiver thread, so they only queue the event.
 
@@ -178,9 +200,23 @@ class PerceptionService:
     # -- control ---------------------------------------------------------------------------
 
     def _on_initialise(self, request: InitialiseRequest) -> StatusReply:
-        self.core.request_initialise(request.mask, request.background)
+        if request.seq >= 0:
+            self._check_held(request.seq)
+        self.core.request_initialise(request.mask, request.background, request.seq)
+        if request.seq >= 0:
+            self._initialise_on_held(request.seq)  # a frame received already: build the mesh now
         self._malformed_told = self._frames.malformed
         return self.status(request.request_id)
+
+    def _check_held(self, seq: int) -> None:
+        """Raise ValueError unless frame ``seq`` is held (received recently) or still to come
+        (newer than every frame held)."""
+        held = [f.seq for f in self._frames.recent()]
+        if not held or seq > held[-1] or seq in held:
+            return
+        raise ValueError(f"InitialiseRequest.seq {seq}: not among the last {len(held)} frames received "
+                         f"(seq {held[0]} to {held[-1]}); name a frame received within the last {RECENT_FRAMES}, "
+                         "or -1 for the next frame")
 
     def _on_reset(self, request: ResetRequest) -> StatusReply:
         self.core.request_reset()

@@ -75,6 +75,7 @@ class PerceptionCore:
         self.lost_streak = 0  # consecutive lost or rejected frames while tracking
         self.last_error = ""  # one line: why the last initialisation or frame failed
         self._pending_mask: np.ndarray | None = None
+        self._pending_seq = -1  # the seq of the frame to initialise on; -1: the next one
         self._standing_occluder: np.ndarray | None = None  # (H, W) bool, for every frame
         self._occluders_by_seq: dict[int, np.ndarray] = {}  # seq -> (H, W) bool, for one frame
         self._frame_shape: tuple | None = None  # (H, W) of the last frame received
@@ -86,11 +87,16 @@ class PerceptionCore:
 
     # -- requests --------------------------------------------------------------------------
 
-    def request_initialise(self, mask: np.ndarray | None, background: RGBDFrame | None = None) -> None:
-        """Build a new mesh on the next usable frame, on ``mask`` ((H, W) uint8, non-zero on
-        the object) or, if None, on the object found by depth segmentation; ``background``
-        (the empty workspace, or None) holds for this mesh and any the service builds
-        itself after it, until the next request or a reset.
+    def request_initialise(self, mask: np.ndarray | None, background: RGBDFrame | None = None, seq: int = -1) -> None:
+        """Build a new mesh on the next usable frame, or on the frame ``seq`` (>= 0), on
+        ``mask`` ((H, W) uint8, non-zero on the object) or, if None, on the object found by
+        depth segmentation; ``background`` (the empty workspace, or None) holds for this
+        mesh and any the service builds itself after it, until the next request or a reset.
+
+        With ``seq``, frames before it are not tracked, and a later frame handed first
+        means the frame ``seq`` was missed: the initialisation fails ("init_failed"). A
+        caller that holds frames received earlier hands the frame ``seq`` in again
+        (``handle_frame(frame, again=True)``) before a later one.
         raises ValueError if the mask's or the background's size differs from that of the frames received"""
         if mask is not None and self._frame_shape is not None and mask.shape != self._frame_shape:
             raise ValueError(f"InitialiseRequest.mask: expected shape {self._frame_shape} like the frames, got {mask.shape}")
@@ -99,9 +105,16 @@ class PerceptionCore:
                              f"got {background.depth_m.shape}")
         self._background = background
         self._pending_mask = mask
+        self._pending_seq = int(seq)
         self.state = "initialising"
         self.last_error = ""
-        log.info("initialising on the next frame (%s)", "mask" if mask is not None else "depth segmentation")
+        log.info("initialising on %s (%s)", f"frame {seq}" if seq >= 0 else "the next frame",
+                 "mask" if mask is not None else "depth segmentation")
+
+    @property
+    def initialise_seq(self) -> int:
+        """The ``seq`` of the frame the next mesh is to be built on, or -1 (none in particular)."""
+        return self._pending_seq if self.state == "initialising" else -1
 
     def set_occluder_mask(self, mask: np.ndarray | None, seq: int = -1) -> None:
         """Where a known occluder covers frame ``seq`` (-1: every frame from now on).
@@ -134,6 +147,7 @@ class PerceptionCore:
         """Drop the mesh; stay idle until ``request_initialise``."""
         self.tracker.reset()
         self._pending_mask = None
+        self._pending_seq = -1
         self._background = None
         self._mesh_camera = None
         self.state = "idle"
@@ -177,7 +191,11 @@ class PerceptionCore:
     def discontinuity(self, reason: str) -> None:
         """The frame stream is not a continuation of the frames tracked so far (``reason``, one line)."""
         self.counters.discontinuities += 1
-        if self.auto_init and self.state in ("tracking", "lost"):
+        if self.initialise_seq >= 0:
+            # The frame to build the mesh on belongs to a stream that has ended.
+            self.last_error = self._give_up_initialising(f"{reason} before frame {self._pending_seq} to initialise on arrived")
+            log.warning("%s", self.last_error)
+        elif self.auto_init and self.state in ("tracking", "lost"):
             log.info("%s: re-initialising on the next frame", reason)
             self._reinitialise()
         else:
@@ -186,21 +204,33 @@ class PerceptionCore:
     def _reinitialise(self) -> None:
         self.counters.reinitialisations += 1
         self._pending_mask = None
+        self._pending_seq = -1
         self.state = "initialising"
         self.lost_streak = 0
 
     # -- frames ----------------------------------------------------------------------------
 
-    def handle_frame(self, frame: RGBDFrame) -> MeshEstimate | None:
+    def handle_frame(self, frame: RGBDFrame, again: bool = False) -> MeshEstimate | None:
         """Process one frame according to the state; returns its estimate, or None when the
-        frame was not tracked (idle, or rejected: see ``counters.rejected``)."""
-        self.counters.frames_taken += 1
-        self._frame_shape = frame.depth_m.shape
-        self._last_frame = frame
+        frame was not tracked (idle, waiting for the frame to initialise on, or rejected:
+        see ``counters.rejected``). ``again``: a frame received before (skipped or taken),
+        handed in again to be initialised on; not counted as taken a second time."""
+        if not again:
+            self.counters.frames_taken += 1
+            self._frame_shape = frame.depth_m.shape
+            self._last_frame = frame
         if self.state == "idle":
+            return None
+        wanted = self.initialise_seq
+        if wanted >= 0 and frame.seq != wanted:
+            if frame.seq > wanted:
+                return self._reject("init_failed", self._give_up_initialising(
+                    f"frame {wanted} to initialise on was not received (frame {frame.seq} came first)"))
             return None
         problem = check_frame(frame)
         if problem is not None:
+            if wanted >= 0:
+                self._give_up_initialising("")  # the frame named cannot be initialised on; the rejection says why
             return self._reject(*problem)
         frame = self._with_occluders(frame)
         try:
@@ -218,17 +248,27 @@ class PerceptionCore:
             self._check_object_size(frame, mask)
             estimate = self.tracker.initialise(frame, mask=mask, background=self._background)
         except TrackingError as e:
+            self._pending_seq = -1  # without a mask, depth segmentation tries the next frames
             if mask is not None:
                 # A controller's mask will not fit later frames better: wait for a new request.
                 self._pending_mask = None
                 self.state = "idle"
             return self._reject("init_failed", f"frame {frame.seq}: initialisation failed: {e}")
         self._pending_mask = None
+        self._pending_seq = -1
         self._mesh_camera = frame.camera
         self.frames_since_init = 0
         self.lost_streak = 0
         self.last_error = ""
         return self._accept(frame, estimate)
+
+    def _give_up_initialising(self, reason: str) -> str:
+        """The frame the request named cannot be had: wait idle for a new request. Returns
+        the one-line error."""
+        self._pending_mask = None
+        self._pending_seq = -1
+        self.state = "idle"
+        return f"{reason}: send a new InitialiseRequest"
 
     def _check_object_size(self, frame: RGBDFrame, mask: np.ndarray | None) -> None:
         """Raise TrackingError when the mesh laid over the object (``mask``, or the object

@@ -497,3 +497,46 @@ def test_occluder_masks_reach_the_tracker_combined_and_only_for_their_frame(fram
     core.set_occluder_mask(None)  # clears the standing mask
     core.handle_frame(dataclasses.replace(frames[4], seq=8))
     assert seen[3] is None  # seq 7's mask was dropped when frame 8 came
+
+
+def test_an_initialise_request_builds_the_mesh_on_the_frame_it_names(frames):
+    with Running(frames, auto_init=False) as run:
+        assert wait_until(lambda: run.status().frames_received >= 4, 10.0)
+        named = run.service._frames.recent()[-1].seq  # a frame the service received, as a controller knows it
+        reply = run.control.request(InitialiseRequest(request_id=8, mask=frames[named % N].depth_m < 2.0, seq=named))
+        assert (reply.request_id, reply.state, reply.last_seq, reply.frames_processed) == (8, "tracking", named, 1)
+        est = run.next_estimate()
+        med, _, inside = near_surface(est)
+        assert est.seq >= named and med < 0.006 and inside, (est.seq, med, inside)
+
+        assert wait_until(lambda: run.status().frames_received > 14, 10.0)
+        with pytest.raises(RemoteError, match=r"InitialiseRequest.seq 0: not among the last 10 frames received "
+                                              r"\(seq \d+ to \d+\)") as e:
+            run.control.request(InitialiseRequest(request_id=9, mask=frames[0].depth_m < 2.0, seq=0))
+        assert e.value.code == "invalid" and run.status().state == "tracking"  # refused: nothing changed
+
+        ahead = run.service._frames.recent()[-1].seq + 8  # a frame still to come
+        reply = run.control.request(InitialiseRequest(mask=frames[ahead % N].depth_m < 2.0, seq=ahead))
+        assert reply.state == "initialising"
+        with Subscriber(run.service.endpoints["estimates"], accept=(MeshEstimate,), keep_recent=5) as watch:
+            assert wait_until(lambda: len(watch.recent()) + (watch.recv_latest(0.0) is not None) >= 2, 20.0)
+            first = watch.recent()[0]
+        assert first.seq == ahead and near_surface(first)[0] < 0.006  # no frame before it was tracked
+
+
+def test_a_frame_named_to_initialise_on_that_never_comes_leaves_the_service_idle_saying_why(frames):
+    core = PerceptionCore(TrackerConfig.realtime(), auto_init=False)
+    core.handle_frame(frames[0])
+    core.request_initialise(frames[3].depth_m < 2.0, seq=3)
+    assert core.handle_frame(frames[2]) is None and core.state == "initialising"  # before it: waits
+    assert core.handle_frame(frames[4]) is None and core.state == "idle"  # 3 was missed
+    assert core.counters.rejected == {"init_failed": 1}
+    assert core.last_error == ("frame 3 to initialise on was not received (frame 4 came first): "
+                               "send a new InitialiseRequest")
+    core.request_initialise(frames[3].depth_m < 2.0, seq=3)
+    est = core.handle_frame(frames[3], again=True)  # held by the caller since it came
+    assert est.seq == 3 and near_surface(est)[0] < 0.006 and core.state == "tracking"
+    assert core.counters.frames_taken == 3  # a frame handed in again is not taken twice
+    core.request_initialise(None, seq=9)
+    core.discontinuity("frame source restarted")
+    assert core.state == "idle" and core.last_error.startswith("frame source restarted before frame 9")

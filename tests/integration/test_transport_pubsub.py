@@ -331,3 +331,21 @@ def test_malformed_messages_in_a_burst_are_each_counted_not_skipped(caplog):
             assert 1 <= len(logged) <= 2
     finally:
         raw.close()
+
+
+def test_recent_keeps_the_messages_taken_or_skipped_not_the_one_waiting():
+    with Publisher(ANY_PORT, source="frames", heartbeat_period_s=0.05) as pub, \
+            Subscriber(pub.endpoint, accept=(m.RGBDFrame,), keep_recent=3) as sub, \
+            Subscriber(pub.endpoint, accept=(m.RGBDFrame,)) as plain:
+        first = publish_until_received(pub, sub, FRAME)
+        assert wait_until(lambda: plain.recv_latest(0.0) is not None, 5.0)
+        assert sub.recent() == [first]
+        for seq in range(10, 15):  # one at a time, each received before the next (the queue holds few)
+            pub.publish(dataclasses.replace(FRAME, seq=seq))
+            assert wait_until(lambda n=seq - 10: sub.skipped == n, 5.0)
+        assert [f.seq for f in sub.recent()] == [11, 12, 13]  # skipped, oldest dropped; 14 still waits
+        assert sub.recv_latest(1.0).seq == 14
+        assert [f.seq for f in sub.recent()] == [12, 13, 14]
+        assert plain.recent() == []
+    with pytest.raises(ValueError, match="keep_recent"):
+        Subscriber(ANY_PORT.replace("*", "1"), keep_recent=-1)
