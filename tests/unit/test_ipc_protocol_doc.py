@@ -14,6 +14,7 @@ from ipc.codec import MESSAGE_TYPES
 from ipc.examples import adjacent_corners_example, worked_example
 from ipc.messages import SCHEMA_VERSION
 from perception.parameters import tracker_parameters
+from perception.service import RECENT_FRAMES
 from perception.tracker import TrackerConfig
 
 DOC = (Path(__file__).resolve().parents[2] / "docs" / "protocol.md").read_text()
@@ -83,3 +84,10 @@ def test_every_tracker_parameter_the_service_accepts_is_documented_with_its_defa
     accepted = tracker_parameters(TrackerConfig())
     assert set(documented) == set(accepted)
     assert all(documented[name] == repr(value).replace("'", '"') for name, value in accepted.items())
+
+
+def test_the_frames_an_initialise_request_can_name_are_the_services():
+    initialise = section("InitialiseRequest")
+    assert f"One of the last {RECENT_FRAMES} frames the service received" in initialise
+    assert f"one of the last {RECENT_FRAMES} frames received, whether tracked or dropped" in DOC
+    assert f"within {RECENT_FRAMES} frames of it" in DOC
