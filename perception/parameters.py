@@ -82,6 +82,7 @@ PARAMETER_RANGES = {
     "depth_window_px": Range(1, 31),
     "depth_outlier_m": Range(0.0, 10.0, lo_open=True),
     "occlusion_margin_m": Range(0.0, 10.0, lo_open=True),
+    "unknown_occluder_m": Range(0.0, 1.0),
     "boundary_gate_m": Range(0.0, 10.0, lo_open=True),
     "velocity_prediction": Range(0.0, 2.0),
     "init_iterations": Range(0, 100),

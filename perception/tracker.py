@@ -69,6 +69,7 @@ from perception.geometry import Undistorter, face_normals, pixel_index, project,
 from perception.initial_mesh import InitialisationError, mesh_from_mask, object_area_m2, place_mesh, spacing_for
 from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
+from perception.occluders import occluders_in_front
 from perception.raster import faces_mask
 from perception.registration import GlobalRegistration
 from perception.segmentation import SegmentationConfig, find_by_colour, find_object, segment_tracked, valid_depth
@@ -151,6 +152,10 @@ class TrackerConfig:
         (along the measured surface's normal, ``perception.energy.PlaneDepthTerm``: a surface
         seen edge-on is not slid along)
     occlusion_margin_m : a vertex is hidden when the measured surface at its pixel is this much nearer
+    unknown_occluder_m : a surface this much nearer than the predicted mesh, standing out from
+        the cloth around it by as much all round, is taken for an object in front of the cloth
+        (a hand on it, a tool) and treated as a known occluder, though no occluder mask names
+        it (``perception.occluders``); 0 switches this off
     lambda_m : weight of the motion prior that carries hidden and unobserved vertices
     lambda_l : weight of the stretch term that keeps the mesh's edge lengths (0: the paper's
         energy, whose smoothness lets a mesh shrink onto the part of the object still seen)
@@ -210,6 +215,7 @@ class TrackerConfig:
     depth_outlier_m: float = 0.08
     depth_residual: str = field(default="ray", metadata={"choices": DEPTH_RESIDUALS})
     occlusion_margin_m: float = 0.08
+    unknown_occluder_m: float = 0.03
     lambda_m: float = 1.0
     lambda_l: float = 5.0
     lambda_h: float = 100.0
@@ -296,6 +302,7 @@ class MeshTracker:
         self._faces_out = None
         self._edges = None
         self._visible = None  # (N,) bool, the vertices seen in the last frame
+        self._unknown_occluder = None  # (H, W) bool, objects in front found in the last frame
         self._memory = FrameMemory()
         self.coarse_corrections = 0  # frames predicted otherwise than by constant velocity
         self.last_motion_scores: dict = {}
@@ -754,11 +761,27 @@ class MeshTracker:
             return V
         return self._tethers.apply(V, frame.held_vertices, frame.held_points_m, self.config.tether_slack)
 
+    def _with_unknown_occluders(self, frame: RGBDFrame, V: np.ndarray) -> RGBDFrame:
+        """``frame`` with the objects in front of the mesh ``V`` (N, 3) that nobody announced
+        (``perception.occluders``) added to its occluder mask."""
+        near = self.config.unknown_occluder_m
+        front = None
+        if near > 0:
+            front = occluders_in_front(frame.depth_m, V, self.mesh.faces, frame.camera.K, near, self._unknown_occluder)
+        self._unknown_occluder = front
+        if front is None:
+            return frame
+        front = front.copy()
+        if frame.occluder_mask is not None:
+            front |= frame.occluder_mask
+        return replace(frame, occluder_mask=front)
+
     def _solve_frame(self, frame, V_pred, pred_mask, grey, prepared, t0) -> MeshEstimate:
         cfg = self.config
         K = frame.camera.K
         faces = self.mesh.faces
         V_pred = self._tethered(V_pred, frame)
+        frame = self._with_unknown_occluders(frame, V_pred)
         z = V_pred[:, 2]
         state = self._states(V_pred, frame)
         behind = np.any(state[faces] == OCCLUDED, axis=1)

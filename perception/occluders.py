@@ -1,0 +1,140 @@
+"""Something in front of the cloth that nobody announced: a hand on it, a tool, an arm.
+
+A known occluder (``RGBDFrame.occluder_mask``) is one the robot tells the tracker of. An
+object it does not know of, close in front of the cloth (a hand touching it, a bar a few
+centimetres in front), is nearer than the cloth by less than the occlusion margin, which
+must stay wide enough for a mesh that lags behind a cloth moving fast. Its pixels then
+count as the object's: the vertices behind it count as seen, the depth term pulls them
+onto its front, their neighbours follow, and frame by frame the hidden part climbs onto
+the object and is dragged along with it, while every cue of the confidence agrees.
+
+What tells such an object from the cloth is a step in the measured depth: it is nearer
+than the mesh predicted there, and nearer than the cloth around it by a step all round.
+A part of the cloth the mesh lags behind is nearer than predicted too, but it runs on
+into the cloth around it without a step (a flap folding over steps down along its free
+edges and not along its crease); a cloth that moved as a whole has no cloth around it
+where the mesh was predicted, and is left alone too.
+
+Arrays: vertices (N, 3) float metres in the camera frame; depth (H, W) float32 metres,
+0 or NaN where unmeasured; masks (H, W) bool.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from perception.geometry import pixel_index, project
+from perception.mesh import barycentric_2d
+from perception.raster import face_index_image
+from perception.segmentation import SHADOW_PX, valid_depth
+
+#: Share of the cloth around a nearer patch (measured next to it, where the mesh is predicted
+#: and agrees with the data) that must lie farther than the patch by the step: a patch of the
+#: cloth itself meets the cloth around it without a step somewhere (a crease, a lagging part).
+ALL_ROUND = 0.85
+#: The same share for a patch where an object in front was found in the frame before: once
+#: it is in front, the mesh's edge next to it may have been drawn a little towards it, and
+#: part of its rim then agrees with the mesh. A patch of cloth the object left is released:
+#: the cloth runs on around it.
+STILL_ROUND = 0.4
+#: Pixels of the cloth around a patch, at least, that the step is judged on.
+MIN_RING_PX = 12
+#: How far around a patch (pixels) the cloth is looked at: next to it, and beyond a band
+#: without depth as wide as a sensor leaves beside a depth discontinuity.
+NEAR_RING_PX, FAR_RING_PX = 3, SHADOW_PX
+
+
+def _disc(radius: int) -> np.ndarray:
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1,) * 2)
+
+
+def _predicted_depth(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, box, shape) -> np.ndarray:
+    """(h, w) float64 depth of the mesh's nearest face at each pixel of ``box``, NaN off the mesh."""
+    y0, y1, x0, x1 = box
+    fid = face_index_image(uv - [x0, y0], faces, vertices[:, 2], (y1 - y0, x1 - x0))
+    z = np.full(fid.shape, np.nan)
+    rows, cols = np.nonzero(fid >= 0)
+    if len(rows):
+        f = fid[rows, cols]
+        bary = barycentric_2d(np.column_stack([cols + x0, rows + y0]).astype(np.float64), uv[faces[f]])
+        z[rows, cols] = np.einsum("pk,pk->p", bary, vertices[faces[f], 2])
+    return z
+
+
+def _steps_all_round(patches: np.ndarray, n: int, depth: np.ndarray, cloth: np.ndarray, radius: int,
+                     step_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """For each patch label 1..n of ``patches`` (int32 image, 0 elsewhere): how many pixels of
+    ``cloth`` lie within ``radius`` of it, and how many of those lie farther than the patch
+    next to them (its mean depth within ``radius``) by more than ``step_m``; (n + 1,) each."""
+    inside = patches > 0
+    around = cv2.dilate(patches.astype(np.float32), _disc(radius)).astype(np.int32)
+    ring = (around > 0) & ~inside & cloth
+    k = (2 * radius + 1,) * 2
+    near_sum = cv2.boxFilter(np.where(inside, depth, 0.0), -1, k, normalize=False)
+    near_n = cv2.boxFilter(inside.astype(np.float64), -1, k, normalize=False)
+    ring &= near_n > 0
+    label = around[ring]
+    stepped = depth[ring] - near_sum[ring] / near_n[ring] > step_m
+    return (np.bincount(label, minlength=n + 1), np.bincount(label, weights=stepped, minlength=n + 1))
+
+
+def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray,
+                       near_m: float, before: np.ndarray | None = None, min_px: int = 40) -> np.ndarray | None:
+    """(H, W) bool: objects in front of the cloth that the predicted mesh ``vertices``
+    (N, 3), ``faces`` (M, 3) does not explain (see the module docstring); None when there is
+    none.
+
+    depth_m : (H, W) float32 metres; K : (3, 3) intrinsics
+    near_m : how much nearer than the predicted mesh a surface must be, and how far it must
+        stand out from the cloth around it (a step all round), to be taken for an object in
+        front; more than the sensor's noise, less than the nearest such object is expected
+    before : (H, W) bool, what this returned for the frame before, or None: a patch mostly
+        within reach of it (``FAR_RING_PX``) is the same object, moved, and needs the step
+        only on ``STILL_ROUND`` of the cloth around it
+    min_px : smaller patches (pixels) are left alone
+    """
+    h, w = depth_m.shape
+    uv = project(vertices, K)
+    cols, rows, inside = pixel_index(uv, w, h)
+    d = depth_m[rows, cols]
+    # Cheap test first: an object in front of the cloth covers some vertices.
+    if np.count_nonzero(inside & valid_depth(d) & (d < vertices[:, 2] - near_m)) < 2:
+        return None
+    pad = FAR_RING_PX + 1
+    box = (max(0, int(rows[inside].min()) - pad), min(h, int(rows[inside].max()) + 1 + pad),
+           max(0, int(cols[inside].min()) - pad), min(w, int(cols[inside].max()) + 1 + pad))
+    y0, y1, x0, x1 = box
+    depth = np.asarray(depth_m[y0:y1, x0:x1], np.float64)
+    valid = valid_depth(depth)
+    depth = np.where(valid, depth, 0.0)
+    z = _predicted_depth(vertices, faces, uv, box, (h, w))
+    on_mesh = valid & np.isfinite(z)
+    offset = np.where(on_mesh, depth - np.nan_to_num(z), 0.0)
+    nearer = cv2.morphologyEx((on_mesh & (offset < -near_m)).view(np.uint8), cv2.MORPH_OPEN,
+                              np.ones((3, 3), np.uint8)).view(bool)
+    n, patches, stats, _ = cv2.connectedComponentsWithStats(nearer.view(np.uint8), connectivity=8)
+    small = stats[:, cv2.CC_STAT_AREA] < min_px
+    patches[small[patches]] = 0
+    if not (patches > 0).any():
+        return None
+    cloth = on_mesh & (np.abs(offset) <= near_m)  # where the data agrees with the prediction
+    seen, stepped = _steps_all_round(patches, n - 1, depth, cloth, NEAR_RING_PX, near_m)
+    # Beside an object in front, the sensor often measures nothing for a few pixels: judge
+    # those patches on the cloth beyond that band.
+    far_seen, far_stepped = _steps_all_round(patches, n - 1, depth, cloth, FAR_RING_PX, near_m)
+    use_far = seen < MIN_RING_PX
+    seen, stepped = np.where(use_far, far_seen, seen), np.where(use_far, far_stepped, stepped)
+    front = (seen >= MIN_RING_PX) & (stepped >= ALL_ROUND * np.maximum(seen, 1))
+    if before is not None:
+        reach = cv2.dilate(before[y0:y1, x0:x1].view(np.uint8), _disc(FAR_RING_PX)).view(bool)
+        area = stats[:, cv2.CC_STAT_AREA]
+        again = np.bincount(patches[reach], minlength=n) >= 0.5 * area
+        front |= again & (far_seen >= MIN_RING_PX) & (far_stepped >= STILL_ROUND * np.maximum(far_seen, 1))
+    front[0] = False
+    if not front.any():
+        return None
+    out = np.zeros((h, w), bool)
+    # Grown by a pixel or two: the object's own edge pixels, mixed with the cloth behind.
+    out[y0:y1, x0:x1] = cv2.dilate(front[patches].view(np.uint8), _disc(2)).view(bool)
+    return out
