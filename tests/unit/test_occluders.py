@@ -51,7 +51,7 @@ def test_an_object_in_front_of_the_cloth_is_found(sheet, gap_m, shadow_px):
     front = occluders_in_front(depth, *sheet, K, near_m=0.03)
     assert front is not None and front[hand].all()
     assert not front[box(60, 90, 60, 260)].any()  # the cloth around it is not
-    assert front.sum() < 1.3 * hand.sum()
+    assert front.sum() < 1.5 * hand.sum()  # grown by its edge pixels
 
 
 def test_an_object_over_the_cloth_s_edge_is_found(sheet):
