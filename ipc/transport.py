@@ -545,6 +545,11 @@ class Subscriber:
         with self._cond:
             return list(self._recent)
 
+    def clear_recent(self) -> None:
+        """Forget the messages ``recent()`` holds."""
+        with self._cond:
+            self._recent.clear()
+
     def _keep(self, msg) -> None:
         if self._recent.maxlen:
             self._recent.append(msg)

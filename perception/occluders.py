@@ -15,6 +15,13 @@ into the cloth around it without a step (a flap folding over steps down along it
 edges and not along its crease); a cloth that moved as a whole has no cloth around it
 where the mesh was predicted, and is left alone too.
 
+What it misses: an object whose rim slopes down into the cloth (a rounded hand lying flat
+on it, fingertips) meets the cloth without a step and is taken for cloth, as before; so is
+anything nearer than the predicted mesh by less than ``near_m``. The threshold is in metres
+whatever the depth: a sensor whose noise at the cloth's distance approaches it (a stereo
+camera at 2-3 m) wants a larger one. A flap folded over whose crease the sensor does not
+measure steps down all round, and is taken for an object in front.
+
 Arrays: vertices (N, 3) float metres in the camera frame; depth (H, W) float32 metres,
 0 or NaN where unmeasured; masks (H, W) bool.
 """
@@ -33,11 +40,6 @@ from perception.segmentation import SHADOW_PX, valid_depth
 #: and agrees with the data) that must lie farther than the patch by the step: a patch of the
 #: cloth itself meets the cloth around it without a step somewhere (a crease, a lagging part).
 ALL_ROUND = 0.85
-#: The same share for a patch where an object in front was found in the frame before: once
-#: it is in front, the mesh's edge next to it may have been drawn a little towards it, and
-#: part of its rim then agrees with the mesh. A patch of cloth the object left is released:
-#: the cloth runs on around it.
-STILL_ROUND = 0.4
 #: Pixels of the cloth around a patch, at least, that the step is judged on.
 MIN_RING_PX = 12
 #: How far around a patch (pixels) the cloth is looked at: next to it, and beyond a band
@@ -76,14 +78,13 @@ def _steps_all_round(patches: np.ndarray, n: int, depth: np.ndarray, cloth: np.n
     k = (2 * radius + 1,) * 2
     near_sum = cv2.boxFilter(np.where(inside, depth, 0.0), -1, k, normalize=False)
     near_n = cv2.boxFilter(inside.astype(np.float64), -1, k, normalize=False)
-    ring &= near_n > 0
     label = around[ring]
     stepped = depth[ring] - near_sum[ring] / near_n[ring] > step_m
     return (np.bincount(label, minlength=n + 1), np.bincount(label, weights=stepped, minlength=n + 1))
 
 
 def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray,
-                       near_m: float, before: np.ndarray | None = None, min_px: int = 40) -> np.ndarray | None:
+                       near_m: float, known: np.ndarray | None = None, min_px: int = 40) -> np.ndarray | None:
     """(H, W) bool: objects in front of the cloth that the predicted mesh ``vertices``
     (N, 3), ``faces`` (M, 3) does not explain (see the module docstring); None when there is
     none.
@@ -92,9 +93,7 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
     near_m : how much nearer than the predicted mesh a surface must be, and how far it must
         stand out from the cloth around it (a step all round), to be taken for an object in
         front; more than the sensor's noise, less than the nearest such object is expected
-    before : (H, W) bool, what this returned for the frame before, or None: a patch mostly
-        within reach of it (``FAR_RING_PX``) is the same object, moved, and needs the step
-        only on ``STILL_ROUND`` of the cloth around it
+    known : (H, W) bool, the known occluders (not looked for again, and not cloth), or None
     min_px : smaller patches (pixels) are left alone
     """
     h, w = depth_m.shape
@@ -107,8 +106,11 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
         return None
     # The object lies within a face of the vertices it covers, and the cloth it is judged
     # against within FAR_RING_PX beyond: work in that box, on every STEP_PX-th pixel.
-    edge_px = float(np.median(np.linalg.norm(uv[faces[:, 0]] - uv[faces[:, 1]], axis=1)))
-    pad = int(FAR_RING_PX + 2 * min(edge_px, max(h, w))) + STEP_PX
+    edges = np.linalg.norm(uv[faces[:, 0]] - uv[faces[:, 1]], axis=1)
+    edges = edges[np.isfinite(edges)]  # a vertex behind the camera projects nowhere
+    if not len(edges):
+        return None
+    pad = int(FAR_RING_PX + 2 * min(float(np.median(edges)), max(h, w))) + STEP_PX
     y0 = max(0, int(rows[covered].min()) - pad) // STEP_PX * STEP_PX
     x0 = max(0, int(cols[covered].min()) - pad) // STEP_PX * STEP_PX
     y1, x1 = min(h, int(rows[covered].max()) + 1 + pad), min(w, int(cols[covered].max()) + 1 + pad)
@@ -125,6 +127,8 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
     drawn = np.isfinite(z)
     z = np.where(drawn, z, cv2.dilate(np.where(drawn, z, 0.0), _disc(2)))
     on_mesh = valid & (z > 0)
+    if known is not None:
+        on_mesh &= ~known[y0:y1:STEP_PX, x0:x1:STEP_PX]
     offset = np.where(on_mesh, depth - z, 0.0)
     nearer = cv2.morphologyEx((on_mesh & (offset < -near_m)).view(np.uint8), cv2.MORPH_OPEN,
                               np.ones((3, 3), np.uint8)).view(bool)
@@ -142,16 +146,11 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
     use_far = seen < least
     seen, stepped = np.where(use_far, far_seen, seen), np.where(use_far, far_stepped, stepped)
     front = (seen >= least) & (stepped >= ALL_ROUND * np.maximum(seen, 1))
-    if before is not None:
-        reach = cv2.dilate(before[y0:y1:STEP_PX, x0:x1:STEP_PX].view(np.uint8),
-                           _disc(FAR_RING_PX // STEP_PX)).view(bool)
-        again = np.bincount(patches[reach], minlength=n) >= 0.5 * area
-        front |= again & (far_seen >= least) & (far_stepped >= STILL_ROUND * np.maximum(far_seen, 1))
     front[0] = False
     if not front.any():
         return None
     # Grown by a pixel or two: the object's own edge pixels, mixed with the cloth behind.
-    found = cv2.dilate(front[patches].view(np.uint8), _disc(1))
+    found = cv2.dilate(front[patches].view(np.uint8), np.ones((3, 3), np.uint8))
     out = np.zeros((h, w), bool)
     out[y0:y1, x0:x1] = np.repeat(np.repeat(found, STEP_PX, axis=0), STEP_PX, axis=1)[:y1 - y0, :x1 - x0].view(bool)
     return out

@@ -79,6 +79,16 @@ class ServiceConfig:
     curve: CurveKeys | None = None
 
 
+def _check_held(seq: int, held: list[int]) -> None:
+    """Raise ValueError unless frame ``seq`` is among ``held`` (the seqs of the frames held,
+    oldest first) or still to come (newer than every frame held)."""
+    if not held or seq > held[-1] or seq in held:
+        return
+    raise ValueError(f"InitialiseRequest.seq {seq}: not among the last {len(held)} frames received "
+                     f"(seq {held[0]} to {held[-1]}); name a frame received within the last {RECENT_FRAMES}, "
+                     "or -1 for the next frame")
+
+
 class PerceptionService:
     """Sockets and loop of the perception service; see the module docstring.
 
@@ -102,6 +112,8 @@ class PerceptionService:
         self._source_events: queue.SimpleQueue = queue.SimpleQueue()
         self._seq_went_back_at = -math.inf  # time.monotonic() of the last frame whose seq went back
         self._malformed_told = 0  # malformed frame messages before the last InitialiseRequest or ResetRequest
+        # (request_id, seq, hash of the mask) of the last InitialiseRequest carried out on a frame held
+        self._initialised_on: tuple | None = None
         self._viewer = None
         self._closers = []
         try:
@@ -146,7 +158,7 @@ class PerceptionService:
         arrived_at = self._frames.taken_arrived_at
         if frame.seq < self.core.last_seq and self.core.state in ("tracking", "lost"):
             self._seq_went_back_at = time.monotonic()
-            self.core.discontinuity(f"frame seq went back from {self.core.last_seq} to {frame.seq}")
+            self._discontinuity(f"frame seq went back from {self.core.last_seq} to {frame.seq}")
         if 0 <= self.core.initialise_seq < frame.seq:
             # The frame to initialise on was skipped for this newer one: build the mesh on
             # it first (if it is still held), then track this frame from there.
@@ -155,11 +167,14 @@ class PerceptionService:
         self._publish(frame, estimate, arrived_at)
         return estimate
 
-    def _initialise_on_held(self, seq: int) -> None:
-        """Hand the core the frame ``seq`` again, if it is among the frames held."""
-        earlier = next((f for f in self._frames.recent() if f.seq == seq), None)
+    def _initialise_on_held(self, seq: int, held: list | None = None) -> bool:
+        """Hand the core the frame ``seq`` again, if it is among the frames ``held`` (default:
+        those the subscriber holds now); whether it was."""
+        held = self._frames.recent() if held is None else held
+        earlier = next((f for f in held if f.seq == seq), None)
         if earlier is not None:
             self._publish(earlier, self.core.handle_frame(earlier, again=True))
+        return earlier is not None
 
     def _publish(self, frame: RGBDFrame, estimate: MeshEstimate | None, arrived_at: float | None = None) -> None:
         """Publish ``estimate`` (if any) of ``frame``; its latency counts when ``arrived_at``
@@ -195,30 +210,33 @@ class PerceptionService:
             if kind == "restart" and time.monotonic() - self._seq_went_back_at < self._frames.stale_limit_s:
                 log.info("%s: the discontinuity already seen as seq going back", reason)
                 continue
-            self.core.discontinuity(reason)
+            self._discontinuity(reason)
+
+    def _discontinuity(self, reason: str) -> None:
+        """Tell the core; the frames held from before cannot be initialised on any more."""
+        self._frames.clear_recent()
+        self.core.discontinuity(reason)
 
     # -- control ---------------------------------------------------------------------------
 
     def _on_initialise(self, request: InitialiseRequest) -> StatusReply:
+        key = (request.request_id, request.seq, None if request.mask is None else hash(request.mask.tobytes()))
+        if request.seq >= 0 and key == self._initialised_on:
+            # A client's resend of a request already carried out (its reply was late): the
+            # frame it names may have left the frames held since; nothing to do again.
+            return self.status(request.request_id)
+        held = self._frames.recent() if request.seq >= 0 else []
         if request.seq >= 0:
-            self._check_held(request.seq)
+            _check_held(request.seq, [f.seq for f in held])
         self.core.request_initialise(request.mask, request.background, request.seq)
-        if request.seq >= 0:
-            self._initialise_on_held(request.seq)  # a frame received already: build the mesh now
+        # a frame received already: build the mesh now
+        done = request.seq >= 0 and self._initialise_on_held(request.seq, held)
+        self._initialised_on = key if done else None
         self._malformed_told = self._frames.malformed
         return self.status(request.request_id)
 
-    def _check_held(self, seq: int) -> None:
-        """Raise ValueError unless frame ``seq`` is held (received recently) or still to come
-        (newer than every frame held)."""
-        held = [f.seq for f in self._frames.recent()]
-        if not held or seq > held[-1] or seq in held:
-            return
-        raise ValueError(f"InitialiseRequest.seq {seq}: not among the last {len(held)} frames received "
-                         f"(seq {held[0]} to {held[-1]}); name a frame received within the last {RECENT_FRAMES}, "
-                         "or -1 for the next frame")
-
     def _on_reset(self, request: ResetRequest) -> StatusReply:
+        self._initialised_on = None
         self.core.request_reset()
         self._malformed_told = self._frames.malformed
         return self.status(request.request_id)

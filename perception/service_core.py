@@ -192,9 +192,15 @@ class PerceptionCore:
         """The frame stream is not a continuation of the frames tracked so far (``reason``, one line)."""
         self.counters.discontinuities += 1
         if self.initialise_seq >= 0:
-            # The frame to build the mesh on belongs to a stream that has ended.
-            self.last_error = self._give_up_initialising(f"{reason} before frame {self._pending_seq} to initialise on arrived")
-            log.warning("%s", self.last_error)
+            # The frame to build the mesh on belongs to a stream that has ended: with automatic
+            # initialisation the service builds a mesh by itself, as after any discontinuity.
+            missed = f"{reason} before frame {self._pending_seq} to initialise on arrived"
+            if self.auto_init:
+                log.info("%s: re-initialising on the next frame", missed)
+                self._reinitialise()
+            else:
+                self.last_error = self._give_up_initialising(missed)
+                log.warning("%s", self.last_error)
         elif self.auto_init and self.state in ("tracking", "lost"):
             log.info("%s: re-initialising on the next frame", reason)
             self._reinitialise()
@@ -230,7 +236,12 @@ class PerceptionCore:
         problem = check_frame(frame)
         if problem is not None:
             if wanted >= 0:
-                self._give_up_initialising("")  # the frame named cannot be initialised on; the rejection says why
+                # The frame named is unusable: without a mask, as when the mesh cannot be built
+                # on it, depth segmentation tries the next frames; a mask fits no other frame.
+                self._pending_seq = -1
+                if self._pending_mask is not None:
+                    kind, message = problem
+                    return self._reject(kind, self._give_up_initialising(f"{message}; the mask cannot be used"))
             return self._reject(*problem)
         frame = self._with_occluders(frame)
         try:

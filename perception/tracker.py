@@ -302,7 +302,6 @@ class MeshTracker:
         self._faces_out = None
         self._edges = None
         self._visible = None  # (N,) bool, the vertices seen in the last frame
-        self._unknown_occluder = None  # (H, W) bool, objects in front found in the last frame
         self._memory = FrameMemory()
         self.coarse_corrections = 0  # frames predicted otherwise than by constant velocity
         self.last_motion_scores: dict = {}
@@ -765,13 +764,11 @@ class MeshTracker:
         """``frame`` with the objects in front of the mesh ``V`` (N, 3) that nobody announced
         (``perception.occluders``) added to its occluder mask."""
         near = self.config.unknown_occluder_m
-        front = None
-        if near > 0:
-            front = occluders_in_front(frame.depth_m, V, self.mesh.faces, frame.camera.K, near, self._unknown_occluder)
-        self._unknown_occluder = front
+        if near <= 0:
+            return frame
+        front = occluders_in_front(frame.depth_m, V, self.mesh.faces, frame.camera.K, near, frame.occluder_mask)
         if front is None:
             return frame
-        front = front.copy()
         if frame.occluder_mask is not None:
             front |= frame.occluder_mask
         return replace(frame, occluder_mask=front)

@@ -505,6 +505,10 @@ def test_an_initialise_request_builds_the_mesh_on_the_frame_it_names(frames):
         named = run.service._frames.recent()[-1].seq  # a frame the service received, as a controller knows it
         reply = run.control.request(InitialiseRequest(request_id=8, mask=frames[named % N].depth_m < 2.0, seq=named))
         assert (reply.request_id, reply.state, reply.last_seq, reply.frames_processed) == (8, "tracking", named, 1)
+        # Sent again (a client whose reply came late resends it), it is not carried out again.
+        mesh = run.service.core.tracker.mesh
+        again = run.control.request(InitialiseRequest(request_id=8, mask=frames[named % N].depth_m < 2.0, seq=named))
+        assert again.state == "tracking" and run.service.core.tracker.mesh is mesh
         est = run.next_estimate()
         med, _, inside = near_surface(est)
         assert est.seq >= named and med < 0.006 and inside, (est.seq, med, inside)
@@ -540,3 +544,17 @@ def test_a_frame_named_to_initialise_on_that_never_comes_leaves_the_service_idle
     core.request_initialise(None, seq=9)
     core.discontinuity("frame source restarted")
     assert core.state == "idle" and core.last_error.startswith("frame source restarted before frame 9")
+    # With automatic initialisation the service builds a mesh by itself instead, as after any discontinuity.
+    auto = PerceptionCore(TrackerConfig.realtime())
+    auto.handle_frame(frames[0])
+    auto.request_initialise(frames[5].depth_m < 2.0, seq=5)
+    auto.discontinuity("frame source restarted")
+    assert auto.state == "initialising" and auto.initialise_seq == -1 and auto.counters.reinitialisations == 1
+    # A frame named that is unusable: without a mask the next frames are tried, a mask goes idle.
+    no_depth = dataclasses.replace(frames[2], depth_m=np.zeros_like(frames[2].depth_m))
+    auto.request_initialise(None, seq=2)
+    assert auto.handle_frame(no_depth) is None and auto.state == "initialising"
+    assert auto.handle_frame(frames[3]).seq == 3 and auto.state == "tracking"
+    auto.request_initialise(frames[2].depth_m < 2.0, seq=2)
+    assert auto.handle_frame(no_depth) is None and auto.state == "idle"
+    assert auto.last_error.endswith("the mask cannot be used: send a new InitialiseRequest")

@@ -346,6 +346,8 @@ def test_recent_keeps_the_messages_taken_or_skipped_not_the_one_waiting():
         assert [f.seq for f in sub.recent()] == [11, 12, 13]  # skipped, oldest dropped; 14 still waits
         assert sub.recv_latest(1.0).seq == 14
         assert [f.seq for f in sub.recent()] == [12, 13, 14]
+        sub.clear_recent()
+        assert sub.recent() == []
         assert plain.recent() == []
     with pytest.raises(ValueError, match="keep_recent"):
         Subscriber(ANY_PORT.replace("*", "1"), keep_recent=-1)
