@@ -40,6 +40,14 @@ from perception.segmentation import SHADOW_PX, valid_depth
 #: and agrees with the data) that must lie farther than the patch by the step: a patch of the
 #: cloth itself meets the cloth around it without a step somewhere (a crease, a lagging part).
 ALL_ROUND = 0.85
+#: The share of the cloth around a patch that must step down, for a patch where an object in
+#: front was found in the frame before: once an object is in front, the mesh's edge next to
+#: it may have been drawn a little towards it, and part of its rim then agrees with the mesh.
+#: A patch of cloth the object left is released: the cloth runs on around it.
+STILL_ROUND = 0.4
+#: An object found in the frame before is that patch again only if the patch has not grown to
+#: more than this many times its size: cloth it lifts, joined to it, must not ride along.
+GROWN = 1.5
 #: Pixels of the cloth around a patch, at least, that the step is judged on.
 MIN_RING_PX = 12
 #: How far around a patch (pixels) the cloth is looked at: next to it, and beyond a band
@@ -84,7 +92,8 @@ def _steps_all_round(patches: np.ndarray, n: int, depth: np.ndarray, cloth: np.n
 
 
 def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray,
-                       near_m: float, known: np.ndarray | None = None, min_px: int = 40) -> np.ndarray | None:
+                       near_m: float, known: np.ndarray | None = None, before: np.ndarray | None = None,
+                       min_px: int = 40) -> np.ndarray | None:
     """(H, W) bool: objects in front of the cloth that the predicted mesh ``vertices``
     (N, 3), ``faces`` (M, 3) does not explain (see the module docstring); None when there is
     none.
@@ -94,6 +103,10 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
         stand out from the cloth around it (a step all round), to be taken for an object in
         front; more than the sensor's noise, less than the nearest such object is expected
     known : (H, W) bool, the known occluders (not looked for again, and not cloth), or None
+    before : (H, W) bool, what this returned for the frame before, or None. A patch that is
+        mostly that object, moved (half of it within ``FAR_RING_PX`` of it, and not grown to
+        more than ``GROWN`` times its size there), needs the step on only ``STILL_ROUND`` of
+        the cloth around it
     min_px : smaller patches (pixels) are left alone
     """
     h, w = depth_m.shape
@@ -146,6 +159,14 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
     use_far = seen < least
     seen, stepped = np.where(use_far, far_seen, seen), np.where(use_far, far_stepped, stepped)
     front = (seen >= least) & (stepped >= ALL_ROUND * np.maximum(seen, 1))
+    if before is not None:
+        was = before[y0:y1:STEP_PX, x0:x1:STEP_PX]
+        reach = cv2.dilate(patches.astype(np.float32), _disc(FAR_RING_PX // STEP_PX)).astype(np.int32)
+        was_near = np.bincount(reach[was], minlength=n)  # the object found before, around each patch
+        on_was = np.bincount(patches[cv2.dilate(was.view(np.uint8), _disc(FAR_RING_PX // STEP_PX)).view(bool)],
+                             minlength=n)
+        again = (on_was >= 0.5 * area) & (area <= GROWN * was_near)
+        front |= again & (far_seen >= least) & (far_stepped >= STILL_ROUND * np.maximum(far_seen, 1))
     front[0] = False
     if not front.any():
         return None

@@ -302,6 +302,7 @@ class MeshTracker:
         self._faces_out = None
         self._edges = None
         self._visible = None  # (N,) bool, the vertices seen in the last frame
+        self._unknown_occluder = None  # (H, W) bool, the objects in front found in the last frame
         self._memory = FrameMemory()
         self.coarse_corrections = 0  # frames predicted otherwise than by constant velocity
         self.last_motion_scores: dict = {}
@@ -766,11 +767,13 @@ class MeshTracker:
         near = self.config.unknown_occluder_m
         if near <= 0:
             return frame
-        front = occluders_in_front(frame.depth_m, V, self.mesh.faces, frame.camera.K, near, frame.occluder_mask)
+        front = occluders_in_front(frame.depth_m, V, self.mesh.faces, frame.camera.K, near, frame.occluder_mask,
+                                   self._unknown_occluder)
+        self._unknown_occluder = front
         if front is None:
             return frame
         if frame.occluder_mask is not None:
-            front |= frame.occluder_mask
+            front = front | frame.occluder_mask
         return replace(frame, occluder_mask=front)
 
     def _solve_frame(self, frame, V_pred, pred_mask, grey, prepared, t0) -> MeshEstimate:
