@@ -124,13 +124,14 @@ def write_section(path: Path, section: str, begin: str = BEGIN, end: str = END) 
 
 
 def main(argv=None) -> int:
-    from sim.scenes import HANDLED_SCENES, PAPER_SCENES
+    from sim.scenes import HANDLED_SCENES, MORE_HANDLED_SCENES, PAPER_SCENES
 
     p = argparse.ArgumentParser(prog="python -m launch_scripts.evaluate", description=__doc__.split("\n\n")[0])
     p.add_argument("--handled", action="store_true",
                    help=f"the 'Tracking while handled' table over {', '.join(HANDLED_SCENES)} instead of the paper's")
     p.add_argument("--scenes", nargs="+",
-                   help=f"scenes (default: all of {', '.join(PAPER_SCENES)}; with --handled: {', '.join(HANDLED_SCENES)})")
+                   help=f"scenes (default: all of {', '.join(PAPER_SCENES)}; with --handled: "
+                        f"{', '.join(HANDLED_SCENES)}, and on request {', '.join(MORE_HANDLED_SCENES)})")
     p.add_argument("--frames", type=int, default=60, help="frames per scene (paper table; handled scenes run their script)")
     p.add_argument("--seed", type=int, default=0, help="scene seed of the paper table (even seeds are for development)")
     p.add_argument("--seeds", type=int, nargs="+", default=[0, 2, 4], help="scene seeds of the handled table (default 0 2 4)")
@@ -142,8 +143,8 @@ def main(argv=None) -> int:
     add_log_level_argument(p)
     args = p.parse_args(argv)
     configure_logging(args.log_level, "%(levelname)s:%(name)s:%(message)s")
-    allowed = HANDLED_SCENES if args.handled else PAPER_SCENES
-    args.scenes = list(args.scenes or allowed)
+    allowed = HANDLED_SCENES + MORE_HANDLED_SCENES if args.handled else PAPER_SCENES
+    args.scenes = list(args.scenes or (HANDLED_SCENES if args.handled else PAPER_SCENES))
     unknown = [s for s in args.scenes if s not in allowed]
     if unknown:
         print(f"error: unknown scene(s) {', '.join(unknown)}; expected among {', '.join(allowed)}"

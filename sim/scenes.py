@@ -26,6 +26,12 @@ Scenes of a cloth being handled (``HANDLED_SCENES``), each with a drawn occluder
 - ``table_lift``: a robot's gripper lifts a printed cloth lying flat on a table by one
   corner, at robot speed, until it hangs.
 
+Beside them, not in the table by default (``MORE_HANDLED_SCENES``):
+
+- ``occluder_close``: ``occluder_sweep`` with the occluder just in front of the cloth, its
+  back 1-8 cm before it, as a hand on the cloth or a tool passing close: nearer than the
+  tracker's occlusion margin.
+
 Their occluders are drawn (``sim.solids``), never simulated: a scene made with
 ``occluders=False`` is their twin, the same cloth moving the same way with nothing drawn
 in front of it. With ``known_occluders=True`` the frames carry the exact mask of the
@@ -40,7 +46,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -451,7 +457,7 @@ def _occluder_colour(rng: np.random.Generator) -> tuple:
     return (grey, grey, grey + rng.uniform(0, 10))
 
 
-def occluder_sweep_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
+def occluder_sweep_spec(rng: np.random.Generator, camera: CameraInfo, close: bool = False) -> SceneSpec:
     """An arm- or hand-sized bar or capsule sweeps across in front of a hanging printed cloth.
 
     The cloth (0.45-0.75 m by 0.35-0.60 m) hangs from its top corners, which sway 2-8 cm
@@ -462,6 +468,9 @@ def occluder_sweep_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSp
     not fit in 90 frames), left to right or right to left, up to 25 degrees off the
     horizontal, from wholly beside the cloth to wholly beyond its other side as the camera
     sees them. The camera stands 1.1-1.35 m in front of the cloth.
+
+    close : the occluder's back lies 1-8 cm in front of the cloth as it comes nearest the
+        camera instead (the same draws, so the same cloth and motion as without)
     """
     width, height = rng.uniform(0.45, 0.75), rng.uniform(0.35, 0.60)
     mesh = rectangle_cloth(width, height, spacing_m=0.025)
@@ -484,6 +493,9 @@ def occluder_sweep_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSp
     depth = rng.uniform(0.04, 0.08)
     length = rng.uniform(0.5, 0.8)
     gap = rng.uniform(0.20, 0.40)
+    if close:
+        back = 0.5 * (thickness if capsule_shaped else depth)  # from its centre line to its back
+        gap = back + fore_m + 0.01 + (gap - 0.20) / 0.20 * 0.07
     speed = rng.uniform(0.35, 1.0)
     heading, tilt = rng.choice([-1.0, 1.0]), np.radians(rng.uniform(-25.0, 25.0))
     direction = np.array([heading * np.cos(tilt), 0.0, np.sin(tilt)])
@@ -543,6 +555,12 @@ def occluder_sweep_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSp
         n_frames=_frames_for(lead_in_s + (path[1] - path[0]) / speed + _AFTER_S),
         occluders=occluders,
     )
+
+
+def occluder_close_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
+    """An arm- or hand-sized bar or capsule sweeps across just in front of a hanging printed
+    cloth, its back 1-8 cm before it (``occluder_sweep_spec`` with ``close``)."""
+    return replace(occluder_sweep_spec(rng, camera, close=True), name="occluder_close")
 
 
 def gripper_corner_move_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
@@ -832,6 +850,7 @@ shirt_chair = _factory("shirt_chair", shirt_chair_spec)
 shirt_textureless_rotate = _factory("shirt_textureless_rotate", shirt_textureless_rotate_spec)
 towel_sway = _factory("towel_sway", towel_sway_spec)
 occluder_sweep = _factory("occluder_sweep", occluder_sweep_spec)
+occluder_close = _factory("occluder_close", occluder_close_spec)
 gripper_corner_move = _factory("gripper_corner_move", gripper_corner_move_spec)
 table_lift = _factory("table_lift", table_lift_spec)
 
@@ -841,6 +860,7 @@ SCENES: dict[str, Callable[..., ClothScene]] = {
     "shirt_textureless_rotate": shirt_textureless_rotate,
     "towel_sway": towel_sway,
     "occluder_sweep": occluder_sweep,
+    "occluder_close": occluder_close,
     "gripper_corner_move": gripper_corner_move,
     "table_lift": table_lift,
 }
@@ -848,6 +868,8 @@ SCENES: dict[str, Callable[..., ClothScene]] = {
 PAPER_SCENES = ("poster_bend", "shirt_chair", "shirt_textureless_rotate", "towel_sway")
 #: A cloth handled, with an occluder drawn in front of it (the "Tracking while handled" table).
 HANDLED_SCENES = ("occluder_sweep", "gripper_corner_move", "table_lift")
+#: More handled scenes, run when named (``launch_scripts.evaluate --handled --scenes NAME``).
+MORE_HANDLED_SCENES = ("occluder_close",)
 
 
 def make_scene(name: str, seed: int = 0, noise: bool = True, width: int = 640, height: int = 480,

@@ -9,11 +9,13 @@ from sim.raster import Shading
 from sim.scenes import (
     HANDLED_FRAMES,
     HANDLED_SCENES,
+    MORE_HANDLED_SCENES,
     PAPER_SCENES,
     SCENES,
     gripper_corner_move_spec,
     kinect_camera,
     make_scene,
+    occluder_close_spec,
     occluder_sweep_spec,
     table_lift_spec,
 )
@@ -25,7 +27,8 @@ SPECS = {"occluder_sweep": occluder_sweep_spec, "gripper_corner_move": gripper_c
 
 
 def test_registry_holds_the_handled_scenes_beside_the_paper_scenes():
-    assert set(PAPER_SCENES) | set(HANDLED_SCENES) == set(SCENES) and not set(PAPER_SCENES) & set(HANDLED_SCENES)
+    handled = set(HANDLED_SCENES) | set(MORE_HANDLED_SCENES)
+    assert set(PAPER_SCENES) | handled == set(SCENES) and not set(PAPER_SCENES) & handled
     assert set(SPECS) == set(HANDLED_SCENES)
 
 
@@ -74,6 +77,17 @@ def test_sweeping_occluders_are_arm_sized_and_cross_the_cloth_in_front_of_it():
             sides.append(-1 if x.max() < x_cloth.min() else 1 if x.min() > x_cloth.max() else 0)
         assert sorted(sides) == [-1, 1], f"seed {seed}: the occluder is seen over the cloth at its start or end"
     assert 0.35 - 1e-6 <= min(speeds) and max(speeds) <= 1.0 + 1e-6
+
+
+def test_the_close_sweep_moves_the_same_cloth_with_its_occluder_just_in_front():
+    camera = kinect_camera(W, H)
+    for seed in range(12):
+        far = occluder_sweep_spec(np.random.default_rng(seed), camera)
+        close = occluder_close_spec(np.random.default_rng(seed), camera)
+        assert close.name == "occluder_close"
+        np.testing.assert_array_equal(close.cloth_vertices_world, far.cloth_vertices_world)
+        back = -close.occluders(0.0).points[:, 1].max()  # its back, in front of the cloth's rest plane
+        assert 0.01 <= back <= 0.08 + 0.03 + 1e-6, f"seed {seed}: back {back:.3f} m in front of the cloth"
 
 
 @pytest.mark.slow
