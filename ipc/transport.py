@@ -536,7 +536,7 @@ class Subscriber:
                 self._cond.wait(remaining)
             msg, self._latest = self._latest, None
             self.taken_arrived_at = self.data_arrived_at
-            self._keep(msg)
+            self._recent.append(msg)  # a deque of maxlen 0 keeps nothing
         return msg
 
     def recent(self) -> list:
@@ -549,10 +549,6 @@ class Subscriber:
         """Forget the messages ``recent()`` holds."""
         with self._cond:
             self._recent.clear()
-
-    def _keep(self, msg) -> None:
-        if self._recent.maxlen:
-            self._recent.append(msg)
 
     @property
     def age_s(self) -> float:
@@ -657,7 +653,7 @@ class Subscriber:
         with self._cond:
             if self._latest is not None:
                 self.skipped += 1
-                self._keep(self._latest)
+                self._recent.append(self._latest)
             self._latest = msg
             self.data_arrived_at = now
             self._cond.notify_all()

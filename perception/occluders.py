@@ -32,8 +32,7 @@ import cv2
 import numpy as np
 
 from perception.geometry import pixel_index, project
-from perception.mesh import barycentric_2d
-from perception.raster import face_index_image
+from perception.raster import locate_pixels
 from perception.segmentation import SHADOW_PX, valid_depth
 
 #: Share of the cloth around a nearer patch (measured next to it, where the mesh is predicted
@@ -65,14 +64,12 @@ def _disc(radius: int) -> np.ndarray:
 def _predicted_depth(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, shape) -> np.ndarray:
     """(h, w) float64 depth of the mesh's nearest face at each pixel, NaN off the mesh; ``uv``
     (N, 2) are the vertices' pixel coordinates in that (h, w) image."""
-    fid = face_index_image(uv, faces, vertices[:, 2], shape)
-    z = np.full(fid.shape, np.nan)
-    rows, cols = np.nonzero(fid >= 0)
-    if len(rows):
-        f = faces[fid[rows, cols]]
-        bary = barycentric_2d(np.column_stack([cols, rows]).astype(np.float64), uv[f])
-        z[rows, cols] = np.einsum("pk,pk->p", bary, vertices[f, 2])
-    return z
+    rows, cols = np.indices(shape).reshape(2, -1)
+    fid, bary = locate_pixels(np.column_stack([cols, rows]), uv, faces, vertices[:, 2], shape)
+    seen = fid >= 0
+    z = np.full(len(fid), np.nan)
+    z[seen] = np.einsum("pk,pk->p", bary[seen], vertices[faces[fid[seen]], 2])
+    return z.reshape(shape)
 
 
 def _steps_all_round(patches: np.ndarray, n: int, depth: np.ndarray, cloth: np.ndarray, radius: int,
