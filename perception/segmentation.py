@@ -130,7 +130,7 @@ def _grow(region: np.ndarray, candidate: np.ndarray) -> np.ndarray:
 def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tuple[float, float],
                     cfg: SegmentationConfig = SegmentationConfig(), hidden_mask: np.ndarray | None = None,
                     rgb: np.ndarray | None = None, colour: ColourModel | None = None,
-                    not_object: np.ndarray | None = None) -> Segment:
+                    not_object: np.ndarray | None = None, with_extent: bool = True) -> Segment:
     """Object mask in a frame, given where the object is predicted to be.
 
     depth_m : (H, W) float32 metres, 0/NaN missing
@@ -151,6 +151,8 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
     not_object : (H, W) bool, pixels that cannot be the object (a known occluder, the empty
         workspace), or None; they are left out of the mask, and the extent does not reach
         across them
+    with_extent : False leaves ``Segment.extent`` None, for a caller that looks it up itself
+        (``object_extent``), e.g. on another thread
     returns Segment; its mask is empty when nothing of the object is seen
     """
     out = np.zeros(predicted_mask.shape, bool)
@@ -181,17 +183,27 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
         candidate &= (p >= 0.5) | (pred & ~_uncovered(pred, p))
         region, leak = _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg)
     out[y0:y1, x0:x1] = region
-    Y0, Y1, X0, X1 = bounding_box(predicted_mask, pad=EXTENT_REACH * cfg.search_margin_px)
-    # Looked up afresh rather than shared with the colour step: the lookup works at half
-    # resolution from its box's corner, and the step keeps its own box's pixels.
-    p_wide = colour.probability(rgb[Y0:Y1, X0:X1])
-    extent = np.zeros(predicted_mask.shape, bool)
-    allowed = None if keep is None else keep[Y0:Y1, X0:X1]
-    extent[Y0:Y1, X0:X1] = _colour_extent(out[Y0:Y1, X0:X1], depth_m[Y0:Y1, X0:X1], p_wide, cfg, allowed)
-    extent |= out
     if keep is not None:
-        out, extent = out & keep, extent & keep
+        out &= keep
+    extent = object_extent(out, depth_m, predicted_mask, rgb, colour, cfg, not_object) if with_extent else None
     return Segment(out, unsearched, leak, extent)
+
+
+def object_extent(mask: np.ndarray, depth_m: np.ndarray, predicted_mask: np.ndarray, rgb: np.ndarray,
+                  colour: ColourModel, cfg: SegmentationConfig = SegmentationConfig(),
+                  not_object: np.ndarray | None = None) -> np.ndarray:
+    """``Segment.extent`` of the object ``mask`` (H, W) bool that ``segment_tracked`` found
+    around ``predicted_mask`` (H, W) bool: the mask and the pixels of the object's colour
+    joined to it, within the prediction's box grown by ``EXTENT_REACH`` search margins, not
+    across ``not_object``. ``colour`` must be informative."""
+    Y0, Y1, X0, X1 = bounding_box(predicted_mask, pad=EXTENT_REACH * cfg.search_margin_px)
+    # Looked up afresh rather than shared with segment_tracked's colour step: the lookup works
+    # at half resolution from its box's corner, and the step keeps its own box's pixels.
+    p_wide = colour.probability(rgb[Y0:Y1, X0:X1])
+    allowed = None if not_object is None else ~not_object[Y0:Y1, X0:X1]
+    extent = mask.copy()
+    extent[Y0:Y1, X0:X1] |= _colour_extent(mask[Y0:Y1, X0:X1], depth_m[Y0:Y1, X0:X1], p_wide, cfg, allowed)
+    return extent
 
 
 def _colour_extent(region: np.ndarray, depth_m: np.ndarray, p: np.ndarray, cfg: SegmentationConfig,

@@ -72,7 +72,14 @@ from perception.observation import Observation, grey_of, observe
 from perception.occluders import occluders_in_front
 from perception.raster import faces_mask
 from perception.registration import GlobalRegistration
-from perception.segmentation import SegmentationConfig, find_by_colour, find_object, segment_tracked, valid_depth
+from perception.segmentation import (
+    SegmentationConfig,
+    find_by_colour,
+    find_object,
+    object_extent,
+    segment_tracked,
+    valid_depth,
+)
 from perception.solver import METHODS, SemiImplicitSolver
 from perception.tether import Tethers
 from perception.visibility import NO_DEPTH, OCCLUDED, VISIBLE, classify_vertices, face_states
@@ -143,7 +150,8 @@ class TrackerConfig:
     match_gate_px : a match must lie within this distance of its predicted location
     match_keep_fraction : the paper keeps the best half of the matches
     match_previous_frame : also match the previous frame's features (bound through the estimate)
-    feature_thread : track or detect features on a second thread while the frame is segmented
+    feature_thread : track or detect features on a second thread while the frame is segmented,
+        and find the object's extent for the confidence there while the mesh is minimised
         (the same results either way; off keeps the tracker on one core)
     outlier_radii_m : inlier radius of each solver stage; a match farther from its mesh point is ignored
     depth_window_px : depth is averaged over this window on the object (noise)
@@ -786,9 +794,16 @@ class MeshTracker:
         state = self._states(V_pred, frame)
         behind = np.any(state[faces] == OCCLUDED, axis=1)
         hidden_mask = faces_mask(project(V_pred, K), faces[behind], pred_mask.shape) if behind.any() else None
+        not_object = self._not_object(frame)
         segment = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation,
-                                  hidden_mask, frame.rgb, self._colour, self._not_object(frame))
+                                  hidden_mask, frame.rgb, self._colour, not_object, with_extent=False)
         mask = segment.mask
+        extent = _Done(None)
+        if mask.any() and self._colour is not None and self._colour.informative:
+            # Only the confidence needs the object's extent: it is found on the second core
+            # while this thread minimises.
+            args = (mask, frame.depth_m, pred_mask, frame.rgb, self._colour, cfg.segmentation, not_object)
+            extent = self._worker().submit(object_extent, *args) if cfg.feature_thread else _Done(object_extent(*args))
         if not mask.any():
             log.debug("frame %d: object not seen", frame.seq)
             self._V_prev, self._V = self._V, self._V.copy()
@@ -832,7 +847,7 @@ class MeshTracker:
             energies["inliers"] = float(corr.weights.sum())
         visible = self._states(V, frame) == VISIBLE
         carried, self._last_seen = self._carried(V, visible, frame)
-        assessment = self._assess(V, frame, visible, mask, segment.leak, carried, segment.extent)
+        assessment = self._assess(V, frame, visible, mask, segment.leak, carried, extent.result())
         return self._estimate(frame, V, energies, iterations, assessment, t0, visible)
 
     def _carried(self, V: np.ndarray, visible: np.ndarray, frame: RGBDFrame) -> tuple[float, np.ndarray]:

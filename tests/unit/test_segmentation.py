@@ -7,7 +7,7 @@ import pytest
 from ipc.messages import CameraInfo
 from perception.colour_model import ColourModel
 from perception.geometry import rays
-from perception.segmentation import SegmentationConfig, find_object, segment_tracked, split_contour
+from perception.segmentation import SegmentationConfig, find_object, object_extent, segment_tracked, split_contour
 
 CAM = CameraInfo.from_fov(320, 240, np.deg2rad(50))
 K = CAM.K
@@ -154,6 +154,12 @@ def test_the_extent_does_not_run_through_what_cannot_be_the_object():
     segment = segment_tracked(depth, upper, (1.18, 1.22), SegmentationConfig(), rgb=rgb, colour=colour,
                               not_object=arm)
     assert segment.extent[poster].mean() < 0.05 and segment.extent[lower].mean() > 0.9
+    # looked up on its own (as the tracker does, on its second thread), the same extent
+    alone = segment_tracked(depth, upper, (1.18, 1.22), SegmentationConfig(), rgb=rgb, colour=colour,
+                            not_object=arm, with_extent=False)
+    assert alone.extent is None and np.array_equal(alone.mask, segment.mask)
+    extent = object_extent(alone.mask, depth, upper, rgb, colour, SegmentationConfig(), not_object=arm)
+    assert np.array_equal(extent, segment.extent)
 
 
 def test_tracked_segmentation_empty_when_object_gone():

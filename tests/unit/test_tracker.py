@@ -199,6 +199,7 @@ def test_feature_thread_changes_nothing_but_where_the_work_runs(tex):
     assert on[-1].energies["inliers"] > 20  # the points were tracked, on the worker thread
     for a, b in zip(on, off):
         np.testing.assert_array_equal(a.vertices, b.vertices)
+        assert a.confidence == b.confidence  # the object's extent too was found on the worker
 
 
 def test_offline_mesh_of_known_size(tex):
