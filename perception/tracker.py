@@ -92,6 +92,11 @@ log = logging.getLogger(__name__)
 #: spacing, lost coverage of the tube to noise-made folds).
 FOLD_MARGIN_MIN_M = 0.005
 
+#: A lost tracker whose print the registration matches, but onto a placement the confidence
+#: rejects, keeps its mesh for this many lost frames before it builds a new one on the object
+#: segmented again (a new mesh loses the material coordinates; a frame or two of bad data pass)
+KEEP_MESH_LOST_FRAMES = 3
+
 
 @lru_cache(maxsize=1)
 def _blas() -> ThreadpoolController:
@@ -587,7 +592,9 @@ class MeshTracker:
         By global registration of the first frame's features (``perception.registration``)
         the canonical mesh is placed where its material points are, and the frame is solved
         from there with the registration's matches as correspondences. Where that fails (a
-        cloth without enough texture, or a print turned over), the object is segmented again
+        cloth without enough texture, a print turned over), or from the
+        ``KEEP_MESH_LOST_FRAMES``-th lost frame on where the confidence rejects the placement
+        (a print matched on a cloth that has folded since), the object is segmented again
         (by its colour, else by depth) and a new mesh is built on it, as at initialisation:
         which material point lies where cannot be known then, so the estimate comes with a
         new canonical mesh rather than one whose material coordinates would be a guess."""
@@ -608,7 +615,7 @@ class MeshTracker:
                                   not_object=self._not_object(frame))
         mask = segment.mask
         if not mask.any():
-            return None
+            return self._placement_failed(frame, t0)
         obs = observe(frame, mask, cfg.depth_window_px, grey=grey, unsearched=segment.unsearched)
         corr = None
         if found is not None:
@@ -623,8 +630,8 @@ class MeshTracker:
         carried, last_seen = self._carried(V, visible, frame)
         assessment = self._assess(V, frame, visible, mask, segment.leak, carried, segment.extent)
         if assessment.lost(cfg.lost_confidence):
-            log.debug("frame %d: re-acquisition rejected (%s)", frame.seq, assessment.as_dict())
-            return None
+            log.debug("frame %d: registration's placement rejected (%s)", frame.seq, assessment.as_dict())
+            return self._placement_failed(frame, t0)
         self._V, self._V_prev, self._good_V = V, V.copy(), V
         self._last_seen = last_seen
         self.last_observation = obs
@@ -634,6 +641,14 @@ class MeshTracker:
         self.reacquisitions += 1
         log.info("frame %d: object re-acquired by registration (confidence %.2f)", frame.seq, assessment.confidence)
         return self._estimate(frame, V, res.energies, res.iterations, assessment, t0, visible)
+
+    def _placement_failed(self, frame: RGBDFrame, t0: float) -> MeshEstimate | None:
+        """After a registration whose placement did not hold: None (the mesh kept) in the first
+        ``KEEP_MESH_LOST_FRAMES - 1`` lost frames, else the object segmented again with a new
+        mesh (``_reinitialise_on_segment``)."""
+        if self.lost_streak < KEEP_MESH_LOST_FRAMES:
+            return None
+        return self._reinitialise_on_segment(frame, t0)
 
     def _object_only(self, mask: np.ndarray, frame: RGBDFrame) -> np.ndarray:
         """``mask`` (H, W) bool less what the object cannot be (``_not_object``)."""
