@@ -155,8 +155,8 @@ def pooled_rows(results: dict) -> list[dict]:
                     row["area_ratio"] = float(np.mean(areas)) if areas else None
                     row["area_ratio_worst"] = float(worst[np.argmax(np.abs(np.subtract(worst, 1.0)))]) if worst else None
                     for k in ("frames", "lost_frames", "wrong_frames", "wrong_confident_frames",
-                              "wrong_unflagged_late_frames"):
-                        row[k] = int(sum(m[k] for m in scored))
+                              "wrong_unflagged_late_frames", "new_meshes"):
+                        row[k] = int(sum(m.get(k, 0) for m in scored))
                     row["median_ms"] = float(np.median([m["median_ms"] for m in scored if m["median_ms"] is not None]))
                 rows.append(row)
     return rows
@@ -198,16 +198,18 @@ def markdown(results: dict, seeds: list[int], noises: tuple) -> str:
              f"confident = frames whose mean vertex error exceeds {WRONG_MM:.0f} mm (wrong) while the tracker's "
              f"confidence is {CONFIDENT} or more; not lost after {LOST_WITHIN} = wrong frames not flagged lost "
              f"after {LOST_WITHIN} wrong frames in a row (issue 11: right, or lost within {LOST_WITHIN} frames); "
-             "ms = median tracking time per frame.",
+             "new meshes = times the tracker re-acquired the object by segmenting it again and laid a new mesh "
+             "on it (its material coordinates start afresh: the errors count from there, each vertex bound to "
+             "the material point it was laid on); ms = median tracking time per frame.",
              "",
              "| scene | variant | masks | preset | error (mm) | ÷ clear | ÷ full rate | occluded area | lost | "
-             f"wrong & confident | wrong, not lost after {LOST_WITHIN} | ms |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             f"wrong & confident | wrong, not lost after {LOST_WITHIN} | new meshes | ms |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for r in rows:
         masks = r["masks"] or "—"
         head = f"| {r['scene']} | {r['variant']} | {masks} | {r['preset']} | "
         if "mean_mm" not in r:
-            lines.append(head + "failed: " + "; ".join(r["failures"]) + " | | | | | | | |")
+            lines.append(head + "failed: " + "; ".join(r["failures"]) + " | | | | | | | | |")
             continue
         area = "—" if r["area_ratio"] is None else f"{r['area_ratio']:.2f}"
         if r["area_ratio_worst"] is not None:
@@ -215,7 +217,7 @@ def markdown(results: dict, seeds: list[int], noises: tuple) -> str:
         cells = [f"{r['mean_mm']:.1f} / {r['p95_mm']:.1f}", _mean_max(r.get("to_twin", [])),
                  _mean_max(r.get("to_full_rate", [])), area, f"{r['lost_frames']}/{r['frames']}",
                  f"{r['wrong_confident_frames']}/{r['frames']}", f"{r['wrong_unflagged_late_frames']}/{r['frames']}",
-                 f"{r['median_ms']:.1f}"]
+                 str(r["new_meshes"]), f"{r['median_ms']:.1f}"]
         lines.append(head + " | ".join(cells) + " |")
         if r["failures"]:
             lines[-1] += " " + "; ".join(f"failed at {f}" for f in r["failures"])

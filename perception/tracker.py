@@ -331,6 +331,7 @@ class MeshTracker:
         self._tethers: Tethers | None = None  # each vertex's distance along the mesh from a held one
         self.lost_streak = 0  # consecutive lost frames
         self.reacquisitions = 0  # times the object was found again after being lost
+        self._cloth_area_m2 = None  # the mesh's area as ``initialise`` laid it, kept through re-acquisitions
         self.last_assessment: Assessment | None = None
         self.last_observation: Observation | None = None
         self.last_feature_xy = np.zeros((0, 2))  # (P, 2) pixels of the last frame's correspondences
@@ -390,10 +391,12 @@ class MeshTracker:
         saved = dict(self.__dict__)
         try:
             with _one_blas_thread():
-                return self._initialise(frame, mask, mesh, background)
+                estimate = self._initialise(frame, mask, mesh, background)
         except Exception:
             self.__dict__.update(saved)
             raise
+        self._cloth_area_m2 = self._mesh_area_m2()
+        return estimate
 
     def _initialise(self, frame, mask, mesh, background) -> MeshEstimate:
         t0 = time.perf_counter()
@@ -642,6 +645,10 @@ class MeshTracker:
         log.info("frame %d: object re-acquired by registration (confidence %.2f)", frame.seq, assessment.confidence)
         return self._estimate(frame, V, res.energies, res.iterations, assessment, t0, visible)
 
+    def _mesh_area_m2(self) -> float:
+        """The canonical mesh's area (its faces are about equilateral, of side ``spacing_m``)."""
+        return 0.25 * np.sqrt(3.0) * self.mesh.spacing_m ** 2 * len(self.mesh.faces)
+
     def _placement_failed(self, frame: RGBDFrame, t0: float) -> MeshEstimate | None:
         """After a registration whose placement did not hold: None (the mesh kept) in the first
         ``KEEP_MESH_LOST_FRAMES - 1`` lost frames, else the object segmented again with a new
@@ -688,12 +695,13 @@ class MeshTracker:
             area = object_area_m2(observe(frame, mask, cfg.depth_window_px))
         except InitialisationError:
             return None
-        rest = 0.25 * np.sqrt(3.0) * self.mesh.spacing_m ** 2 * len(self.mesh.faces)
+        # Measured against the mesh first laid, not one built since on a part of the cloth.
+        rest = self._cloth_area_m2 if self._cloth_area_m2 is not None else self._mesh_area_m2()
         if not 0.15 * rest <= area <= 1.5 * rest:
-            log.debug("frame %d: segmented object of %.3f m^2 against the mesh's %.3f m^2: not it", frame.seq, area, rest)
+            log.debug("frame %d: segmented object of %.3f m^2 against the cloth's %.3f m^2: not it", frame.seq, area, rest)
             return None
         saved = dict(self.__dict__)
-        counters = (self.reacquisitions + 1, self.coarse_corrections)
+        counters = (self.reacquisitions + 1, self.coarse_corrections, self._cloth_area_m2)
         cloth = self._appearance
         try:
             estimate = self._initialise(frame, mask, None, self._background_given)
@@ -706,7 +714,7 @@ class MeshTracker:
         if estimate is None or estimate.lost:
             self.__dict__.update(saved)
             return None
-        self.reacquisitions, self.coarse_corrections = counters
+        self.reacquisitions, self.coarse_corrections, self._cloth_area_m2 = counters
         log.info("frame %d: object found again by segmentation; new mesh of %d vertices", frame.seq,
                  self.mesh.n_vertices)
         return replace(estimate, timing_ms=(time.perf_counter() - t0) * 1000.0)

@@ -67,6 +67,9 @@ class HandledScore:
     shown_hidden : (T,) int, truly hidden vertices the tracker reported visible (-1 when it
         reports no visibility)
     failure : "" or the one-line reason the run stopped early (frames up to it are scored)
+    new_mesh : (T,) bool, frames whose estimate comes with a new canonical mesh (the tracker
+        re-acquired the object by segmenting it again); its errors count from there, each
+        vertex bound to the material point it was laid on; None: none
     """
 
     errors_mm: list
@@ -79,6 +82,7 @@ class HandledScore:
     timing_ms: np.ndarray
     shown_hidden: np.ndarray
     failure: str = ""
+    new_mesh: np.ndarray | None = None
     estimates: list = field(default_factory=list, repr=False)
 
     @property
@@ -131,6 +135,7 @@ class HandledScore:
             "occluded_area_ratio_worst": float(ratio[large][np.argmax(np.abs(ratio[large] - 1.0))])
             if large.any() else None,
             "lost_frames": int(self.lost[idx].sum()),
+            "new_meshes": 0 if self.new_mesh is None else int(self.new_mesh[idx].sum()),
             "wrong_frames": int(wrong.sum()),
             "wrong_confident_frames": int((wrong & confident).sum()),
             "wrong_unflagged_late_frames": int(self.wrong_unflagged_late()[idx].sum()),
@@ -147,6 +152,7 @@ class HandledScore:
             "mean_mm": [round(float(x), 2) for x in self.frame_mean_mm()],
             "confidence": [round(float(x), 3) for x in self.confidence],
             "lost": [bool(x) for x in self.lost],
+            "new_mesh": [False] * self.n_frames if self.new_mesh is None else [bool(x) for x in self.new_mesh],
             "hidden_vertices": [int(h.sum()) for h in self.hidden],
             "area_ratio": [None if np.isnan(x) else round(float(x), 3) for x in self.area_ratio],
         }
@@ -214,6 +220,7 @@ def score_run(rec: SceneRecording, estimates: list, failure: str = "") -> Handle
     errors, hidden = [], []
     area_ratio, hidden_area, mesh_area = np.full(T, np.nan), np.zeros(T), np.zeros(T)
     shown_hidden = np.full(T, -1, np.int64)
+    new_mesh = np.zeros(T, bool)
     K = rec.frames[0].camera.K if rec.frames else None
     start = 0
     while start < T:  # runs of one canonical mesh: a rebuilt mesh is bound to the truth again
@@ -222,6 +229,7 @@ def score_run(rec: SceneRecording, estimates: list, failure: str = "") -> Handle
         stop = start + 1
         while stop < T and np.array_equal(estimates[stop].canonical, canonical):
             stop += 1
+        new_mesh[start] = start > 0
         targets = material_point_tracks(estimates[start].vertices, rec.gt_vertices[start:stop], rec.gt_faces)
         for t in range(start, stop):
             est = estimates[t]
@@ -241,7 +249,7 @@ def score_run(rec: SceneRecording, estimates: list, failure: str = "") -> Handle
         confidence=np.array([e.confidence for e in estimates], dtype=np.float64),
         lost=np.array([e.lost for e in estimates], dtype=bool),
         timing_ms=np.array([e.timing_ms for e in estimates], dtype=np.float64),
-        shown_hidden=shown_hidden, failure=failure, estimates=estimates)
+        shown_hidden=shown_hidden, failure=failure, new_mesh=new_mesh, estimates=estimates)
 
 
 def cloth_hidden_fraction(rec: SceneRecording) -> np.ndarray:

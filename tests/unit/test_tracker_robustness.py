@@ -292,6 +292,25 @@ def test_a_registration_the_confidence_rejects_does_not_keep_the_tracker_lost(te
     on_sheet = np.abs(estimates[-1].vertices[:, :2] - CENTRE[:2]) <= np.array(SIZE) / 2 + 0.01
     assert on_sheet.all()
 
+
+def test_the_cloth_found_again_is_measured_against_the_cloth_first_laid(tex):
+    """A mesh built anew while a hand hid half the sheet covers half of it. When the whole
+    sheet shows again, it is not taken for a surface too large to be the cloth: the yardstick
+    is the mesh ``initialise`` laid, not the last one built."""
+    import time
+
+    tracker = MeshTracker(TrackerConfig(features="klt"))
+    tracker.initialise(sheet(np.zeros(3), tex, 0))
+    whole = tracker._mesh_area_m2()
+    hand = np.zeros((480, 640), bool)
+    hand[:, :320] = True  # the left half of the image, the sheet's left half with it
+    half = tracker._reinitialise_on_segment(with_occluder(sheet(np.zeros(3), tex, 1), hand, 0.9,
+                                                          np.random.default_rng(0), known=True), time.perf_counter())
+    assert half is not None and tracker._mesh_area_m2() < 0.6 * whole
+    again = tracker._reinitialise_on_segment(sheet(np.zeros(3), tex, 2), time.perf_counter())
+    assert again is not None and tracker.reacquisitions == 2
+    assert tracker._mesh_area_m2() > 0.8 * whole
+
 def test_a_print_is_not_found_again_on_a_plain_surface_of_its_colour_unless_the_arms_are_masked(tex):
     """The printed sheet gone, and a plain surface of its ground colour beside where it was (a
     robot's arm, a hand, or the cloth's unprinted back): a mesh built on it learns its appearance
