@@ -152,7 +152,7 @@ class HandledScore:
             "mean_mm": [round(float(x), 2) for x in self.frame_mean_mm()],
             "confidence": [round(float(x), 3) for x in self.confidence],
             "lost": [bool(x) for x in self.lost],
-            "new_mesh": [False] * self.n_frames if self.new_mesh is None else [bool(x) for x in self.new_mesh],
+            "new_mesh_frames": [] if self.new_mesh is None else [int(i) for i in np.flatnonzero(self.new_mesh)],
             "hidden_vertices": [int(h.sum()) for h in self.hidden],
             "area_ratio": [None if np.isnan(x) else round(float(x), 3) for x in self.area_ratio],
         }

@@ -270,7 +270,6 @@ def test_an_estimate_pushed_onto_the_wrong_surface_is_flagged_and_the_sheet_foun
     assert (len(tracker.mesh.canonical) == len(e0.canonical)) or not textured
 
 
-
 def test_a_registration_the_confidence_rejects_does_not_keep_the_tracker_lost(tex):
     """The print matched, but onto a placement the data contradicts (as when the cloth has
     folded since its first frame): the tracker keeps its mesh for its first lost frames, then
