@@ -65,7 +65,7 @@ from perception.features import (
     make_correspondences,
     resolve_kind,
 )
-from perception.geometry import Undistorter, face_normals, pixel_index, project, rays
+from perception.geometry import Undistorter, face_areas, face_normals, pixel_index, project, rays
 from perception.initial_mesh import InitialisationError, mesh_from_mask, object_area_m2, place_mesh, spacing_for
 from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
@@ -646,8 +646,8 @@ class MeshTracker:
         return self._estimate(frame, V, res.energies, res.iterations, assessment, t0, visible)
 
     def _mesh_area_m2(self) -> float:
-        """The canonical mesh's area (its faces are about equilateral, of side ``spacing_m``)."""
-        return 0.25 * np.sqrt(3.0) * self.mesh.spacing_m ** 2 * len(self.mesh.faces)
+        """The canonical mesh's area, square metres."""
+        return float(face_areas(self.mesh.canonical, self.mesh.faces).sum())
 
     def _placement_failed(self, frame: RGBDFrame, t0: float) -> MeshEstimate | None:
         """After a registration whose placement did not hold: None (the mesh kept) in the first
@@ -696,7 +696,7 @@ class MeshTracker:
         except InitialisationError:
             return None
         # Measured against the mesh first laid, not one built since on a part of the cloth.
-        rest = self._cloth_area_m2 if self._cloth_area_m2 is not None else self._mesh_area_m2()
+        rest = self._cloth_area_m2
         if not 0.15 * rest <= area <= 1.5 * rest:
             log.debug("frame %d: segmented object of %.3f m^2 against the cloth's %.3f m^2: not it", frame.seq, area, rest)
             return None
