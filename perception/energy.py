@@ -305,8 +305,8 @@ class OutsideTerm:
     is a boundary vertex near the outline, no other pull: the part of a mesh left behind
     stays behind, held only by the stretch of its edges. This pulls every such vertex to
     the object's outline; a vertex hidden behind something nearer is not seen and not pulled.
-    Nor is one on a pixel without measured depth: a cloth seen at a grazing angle loses its
-    depth there and so falls out of the segmented object without being anywhere else.
+    Nor is one on a pixel without measured depth: the segmentation may have missed the cloth
+    there (a part of the table's colour, seen at a grazing angle, loses its depth).
 
     outline_points : (P, 3) float64 metres, the object's outline in 3D
     mask : (H, W) bool object mask; K : (3, 3)

@@ -8,7 +8,9 @@ Works on depth images (H, W) float32 metres with 0/NaN for missing. Two situatio
 - Tracking (``segment_tracked``): the object is the union of the depth-continuous regions
   that overlap the mesh predicted from the previous frame, searched only within a margin
   around that prediction and a depth band around the mesh. A hand or gripper holding the
-  cloth is cut off at the margin; a wall or floor beyond the band never joins.
+  cloth is cut off at the margin; a wall or floor beyond the band never joins. With the
+  empty workspace known, what differs from it and joins that object is the object too,
+  with or without depth (``_joined_differing``).
 """
 
 from __future__ import annotations
@@ -130,7 +132,8 @@ def _grow(region: np.ndarray, candidate: np.ndarray) -> np.ndarray:
 def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tuple[float, float],
                     cfg: SegmentationConfig = SegmentationConfig(), hidden_mask: np.ndarray | None = None,
                     rgb: np.ndarray | None = None, colour: ColourModel | None = None,
-                    not_object: np.ndarray | None = None, with_extent: bool = True) -> Segment:
+                    not_object: np.ndarray | None = None, with_extent: bool = True,
+                    differs: np.ndarray | None = None) -> Segment:
     """Object mask in a frame, given where the object is predicted to be.
 
     depth_m : (H, W) float32 metres, 0/NaN missing
@@ -153,6 +156,11 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
         across them
     with_extent : False leaves ``Segment.extent`` None, for a caller that looks it up itself
         (``object_extent``), e.g. on another thread
+    differs : (H, W) bool, the pixels that differ from the empty workspace
+        (``perception.background.differs_from_background``), or None when it is not known.
+        With it, the object also takes in the differing pixels joined to what depth found,
+        beyond the search (within the prediction's box grown by ``EXTENT_REACH`` margins),
+        with or without depth (``_joined_differing``); the search then reaches that box.
     returns Segment; its mask is empty when nothing of the object is seen
     """
     out = np.zeros(predicted_mask.shape, bool)
@@ -172,21 +180,66 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
     d = np.where(valid, depth, 0.0)
     candidate = valid & search & (d > z_range[0] - cfg.depth_band_m) & (d < z_range[1] + cfg.depth_band_m)
     region, leak = _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg)
-    keep = None if not_object is None else ~not_object
-    if colour is None or rgb is None or not colour.informative:
-        out[y0:y1, x0:x1] = region
-        return Segment(out if keep is None else out & keep, unsearched, leak)
-    if leak > 0.1:
+    by_colour = colour is not None and rgb is not None and colour.informative
+    if by_colour and leak > 0.1:
         # Depth runs on beyond the search: the object lies on something of its own depth
         # (a table). Colour may tell them apart.
         p = colour.probability(rgb[y0:y1, x0:x1])
         candidate &= (p >= 0.5) | (pred & ~_uncovered(pred, p))
         region, leak = _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg)
     out[y0:y1, x0:x1] = region
-    if keep is not None:
-        out &= keep
+    if not_object is not None:
+        out &= ~not_object
+    if differs is not None and out.any():
+        allowed = differs if not_object is None else differs & ~not_object
+        out, unsearched, leak = _joined_differing(out, allowed, depth_m, predicted_mask, z_range, cfg)
+    if not by_colour:
+        return Segment(out, unsearched, leak)
     extent = object_extent(out, depth_m, predicted_mask, rgb, colour, cfg, not_object) if with_extent else None
     return Segment(out, unsearched, leak, extent)
+
+
+def _joined_differing(mask: np.ndarray, differs: np.ndarray, depth_m: np.ndarray, predicted_mask: np.ndarray,
+                      z_range: tuple[float, float], cfg: SegmentationConfig):
+    """The object ``mask`` (H, W) bool that depth found, with the pixels of ``differs`` (H, W)
+    bool (what differs from the empty workspace and may be the object) joined to it.
+
+    Depth alone misses much of a cloth lying on a table: the sensor loses a surface seen at
+    a grazing angle, and what it measures is continuous with the table, while colour models
+    take a pale cloth on a grey table for the table. Against the empty workspace such a
+    part still differs. A differing pixel joins through its 8 neighbours, within the
+    prediction's box grown by ``EXTENT_REACH`` search margins; one with depth only within
+    the search's depth band of the prediction and not across a step in depth (another
+    surface); one without depth freely.
+
+    Returns (mask, unsearched, leak) as ``Segment``'s: unsearched is what lies outside the
+    box, leak the fraction of the mask's edge on the box's rim inside the image.
+    """
+    h, w = mask.shape
+    y0, y1, x0, x1 = bounding_box(predicted_mask, pad=EXTENT_REACH * cfg.search_margin_px)
+    found = mask[y0:y1, x0:x1]
+    depth = depth_m[y0:y1, x0:x1]
+    valid = valid_depth(depth)
+    d = np.where(valid, depth, 0.0)
+    in_band = (d > z_range[0] - cfg.depth_band_m) & (d < z_range[1] + cfg.depth_band_m) & ~_jumps(depth, cfg)
+    passable = found | (differs[y0:y1, x0:x1] & np.where(valid, in_band, True))
+    n, labels = cv2.connectedComponents(passable.astype(np.uint8), connectivity=8)
+    joined = np.bincount(labels[found], minlength=n) > 0
+    joined[0] = False
+    grown = joined[labels]
+    out = np.zeros((h, w), bool)
+    out[y0:y1, x0:x1] = grown
+    unsearched = np.ones((h, w), bool)
+    unsearched[y0:y1, x0:x1] = False
+    edge = grown & ~cv2.erode(grown.astype(np.uint8), np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT,
+                              borderValue=0).astype(bool)
+    rim = np.zeros_like(grown)  # the box's sides that are not the image's
+    rim[0, :] |= y0 > 0
+    rim[-1, :] |= y1 < h
+    rim[:, 0] |= x0 > 0
+    rim[:, -1] |= x1 < w
+    leak = float((edge & rim).sum() / max(1, edge.sum()))
+    return out, unsearched, leak
 
 
 def object_extent(mask: np.ndarray, depth_m: np.ndarray, predicted_mask: np.ndarray, rgb: np.ndarray,

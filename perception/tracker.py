@@ -384,7 +384,9 @@ class MeshTracker:
         mesh : an off-line canonical mesh (e.g. ``rectangle_mesh``); built from the mask if None
         background : the empty workspace seen by the same fixed camera, or None; from then on
             only what differs from it can be the object (``perception.background``), so a
-            cloth lifted off a table is not held to the table by its depth
+            cloth lifted off a table is not held to the table by its depth, and what differs
+            from it and joins the object is the object, where depth alone misses it (a cloth
+            on a table seen at a grazing angle, ``segment_tracked``)
         raises TrackingError with a one-line reason when the frame cannot carry a mesh; the
         tracker then keeps the object it was tracking before
         """
@@ -613,9 +615,10 @@ class MeshTracker:
         V0 = found.apply(self._good_V)
         h, w = frame.depth_m.shape
         z = V0[:, 2]
+        differs = self._differs(frame)
         segment = segment_tracked(frame.depth_m, faces_mask(project(V0, K), faces, (h, w)),
                                   (float(z.min()), float(z.max())), cfg.segmentation, rgb=frame.rgb, colour=self._colour,
-                                  not_object=self._not_object(frame))
+                                  not_object=self._not_object(frame, differs), differs=differs)
         mask = segment.mask
         if not mask.any():
             return self._placement_failed(frame, t0)
@@ -659,17 +662,22 @@ class MeshTracker:
 
     def _object_only(self, mask: np.ndarray, frame: RGBDFrame) -> np.ndarray:
         """``mask`` (H, W) bool less what the object cannot be (``_not_object``)."""
-        excluded = self._not_object(frame)
+        excluded = self._not_object(frame, self._differs(frame))
         return mask if excluded is None else mask & ~excluded
 
-    def _not_object(self, frame: RGBDFrame) -> np.ndarray | None:
+    def _differs(self, frame: RGBDFrame) -> np.ndarray | None:
+        """(H, W) bool, the pixels of ``frame`` that differ from the empty workspace; None
+        without a background."""
+        return None if self._background is None else differs_from_background(frame, self._background)
+
+    @staticmethod
+    def _not_object(frame: RGBDFrame, differs: np.ndarray | None) -> np.ndarray | None:
         """(H, W) bool, what the object cannot be: pixels of a known occluder
-        (``frame.occluder_mask``) and, with a background, pixels that do not differ from it;
-        None when neither is known."""
+        (``frame.occluder_mask``) and, with ``differs`` (``_differs``), pixels that do not
+        differ from the empty workspace; None when neither is known."""
         excluded = frame.occluder_mask
-        if self._background is not None:
-            same = ~differs_from_background(frame, self._background)
-            excluded = same if excluded is None else excluded | same
+        if differs is not None:
+            excluded = ~differs if excluded is None else excluded | ~differs
         return excluded
 
     def _reinitialise_on_segment(self, frame: RGBDFrame, t0: float) -> MeshEstimate | None:
@@ -817,9 +825,10 @@ class MeshTracker:
         state = self._states(V_pred, frame)
         behind = np.any(state[faces] == OCCLUDED, axis=1)
         hidden_mask = faces_mask(project(V_pred, K), faces[behind], pred_mask.shape) if behind.any() else None
-        not_object = self._not_object(frame)
+        differs = self._differs(frame)
+        not_object = self._not_object(frame, differs)
         segment = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation,
-                                  hidden_mask, frame.rgb, self._colour, not_object, with_extent=False)
+                                  hidden_mask, frame.rgb, self._colour, not_object, with_extent=False, differs=differs)
         mask = segment.mask
         extent = _Done(None)
         if mask.any() and self._colour is not None and self._colour.informative:
