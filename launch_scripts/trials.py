@@ -105,7 +105,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--kind", "--mode", dest="kind", choices=GraspPlan.KINDS, default="corner",
                    help="grasp kind to request (default corner; --mode is its earlier name, which the results use)")
     p.add_argument("--state", choices=INITIAL_STATES,
-                   help="force this initial state in every scene (default: drawn from the seed)")
+                   help="force this initial state in every scene (default: drawn from the seed; the unfold "
+                        "task draws only states on the table: flat, crumpled, folded)")
     p.add_argument("--cloth", choices=CLOTH_KINDS,
                    help="force this cloth kind in every scene (default: drawn from the seed)")
     p.add_argument("--arm", choices=ARMS, default="drawn",

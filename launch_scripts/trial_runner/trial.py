@@ -345,7 +345,7 @@ def run_trial(seed: int, config: TrialConfig | None = None,
     from ipc.transport import Publisher
     from launch_scripts.planner_service import arguments_from_config
     from launch_scripts.trial_runner.unfold import run_unfold
-    from sim.laundry import LaundryScene, laundry_spec
+    from sim.laundry import INITIAL_STATES, TABLE_STATES, LaundryScene, laundry_spec
 
     config = config if config is not None else TrialConfig()
     choose_plan = choose_plan if choose_plan is not None else default_controller(config.kind)
@@ -358,8 +358,10 @@ def run_trial(seed: int, config: TrialConfig | None = None,
         record["arm"] = config.arm
     with contextlib.ExitStack() as stack:
         try:
-            # the unfold task's camera stands back to see the lifted cloth; the robot knows its own arms
-            spec = laundry_spec(seed, view="room" if unfold else "table", **config.scene_options)
+            # the unfold task's cloth starts on the table, and its camera stands back to see the
+            # lifted cloth; the robot knows its own arms
+            spec = laundry_spec(seed, view="room" if unfold else "table",
+                                states=TABLE_STATES if unfold else INITIAL_STATES, **config.scene_options)
             record["scene"] = scene_record(seed, spec=spec)
             scene = stack.enter_context(LaundryScene(spec, noise=config.noise, known_occluders=unfold, arm=config.arm))
             log_dir = Path(config.log_dir) / f"seed{seed}" if config.log_dir else Path(

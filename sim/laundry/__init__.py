@@ -29,7 +29,9 @@ What a seed draws (``laundry_spec``):
   drop), or ``held`` (hanging from a holder that clamps one true
   corner, its lowest point above the table; the holder is a visible box around that
   corner, which it hides as a hand would; the cloth falls into its folds for 5 s and is
-  then brought to rest, as air drag, which PyBullet lacks, would do);
+  then brought to rest, as air drag, which PyBullet lacks, would do); a task may draw
+  among some of them (the unfold task: ``TABLE_STATES``, the cloth on the table), and a
+  seed whose state is among them draws the same scene either way;
 - the cloth's layers collide with each other (``ClothMaterial.self_collision``): a fold
   or a crumple stacks its layers, each 12 mm (twice the collision margin) above the one
   below, rather than letting them pass into one plane, so a fold stands thicker than
@@ -62,6 +64,7 @@ from sim.laundry.spec import (
     INITIAL_STATES,
     STATE_PROBABILITIES,
     TABLE_HALF_XY_M,
+    TABLE_STATES,
     LaundrySpec,
     laundry_spec,
 )
@@ -73,6 +76,7 @@ __all__ = [
     "INITIAL_STATES",
     "STATE_PROBABILITIES",
     "TABLE_HALF_XY_M",
+    "TABLE_STATES",
     "TOLERANCE_M",
     "TURNS_RAD",
     "Judgement",

@@ -29,6 +29,8 @@ CLOTH_KINDS = ("towel", "tshirt")
 #: where a lifted cloth hangs (the unfold task).
 VIEWS = ("table", "room")
 INITIAL_STATES = ("flat", "crumpled", "folded", "held")
+#: The initial states with the cloth lying on the table: where the unfold task starts.
+TABLE_STATES = ("flat", "crumpled", "folded")
 #: How often each initial state is drawn, in the order of ``INITIAL_STATES``.
 STATE_PROBABILITIES = (0.35, 0.25, 0.15, 0.25)
 #: Spacing of the simulated cloth's grid, metres. Corners are mesh vertices whatever it is.
@@ -195,7 +197,8 @@ def _texture(mesh: ClothMesh, rng: np.random.Generator, printed: bool, px_per_m:
 
 
 def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None = None,
-                 cloth_kind: str | None = None, view: str = "table") -> LaundrySpec:
+                 cloth_kind: str | None = None, view: str = "table",
+                 states: tuple[str, ...] = INITIAL_STATES) -> LaundrySpec:
     """Draw a laundry scene from ``seed`` (see the module docstring).
 
     camera : CameraInfo, default Kinect-like 640x480
@@ -203,6 +206,10 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
         everything else is still drawn from the seed
     view : where the camera stands (``VIEWS``); the cloth, the table and everything else
         drawn from the seed are the same in every view
+    states : the initial states to draw among (a task's own, e.g. ``TABLE_STATES``). A state
+        drawn outside them is drawn again among them, by their ``STATE_PROBABILITIES``, from
+        a stream of its own: a seed whose state is among them draws the same scene as with
+        all states. A forced ``state`` need not be among them.
     """
     seed = check_seed(seed)
     if view not in VIEWS:
@@ -211,12 +218,18 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
         raise ValueError(f"unknown initial state {state!r}; expected one of {', '.join(INITIAL_STATES)}")
     if cloth_kind is not None and cloth_kind not in CLOTH_KINDS:
         raise ValueError(f"unknown cloth kind {cloth_kind!r}; expected one of {', '.join(CLOTH_KINDS)}")
+    if not states or any(s not in INITIAL_STATES for s in states):
+        raise ValueError(f"states: expected some of {', '.join(INITIAL_STATES)}, got {states!r}")
     camera = camera if camera is not None else kinect_camera(640, 480)
     scene_seq, _ = np.random.SeedSequence(seed).spawn(2)
     rng = np.random.default_rng(scene_seq)
 
     drawn_kind = CLOTH_KINDS[int(rng.integers(0, len(CLOTH_KINDS)))]
     drawn_state = INITIAL_STATES[int(rng.choice(len(INITIAL_STATES), p=STATE_PROBABILITIES))]
+    if drawn_state not in states:
+        p = np.array([STATE_PROBABILITIES[INITIAL_STATES.index(s)] for s in states])
+        redraw = np.random.default_rng(np.random.SeedSequence(seed).spawn(3)[2])
+        drawn_state = states[int(redraw.choice(len(states), p=p / p.sum()))]
     kind = cloth_kind or drawn_kind
     state = state or drawn_state
     printed = bool(rng.random() < 0.5)

@@ -8,6 +8,7 @@ from sim.cloth_mesh import TShirtShape, rectangle_cloth, tshirt_cloth
 from sim.laundry import (
     CLOTH_KINDS,
     INITIAL_STATES,
+    TABLE_STATES,
     distance_to_segments,
     laundry_spec,
     nearest_corner,
@@ -92,6 +93,29 @@ def test_seeds_cover_every_kind_and_state():
     assert {s.cloth_kind for s in specs} == set(CLOTH_KINDS)
     assert {s.state for s in specs} == set(INITIAL_STATES)
     assert {s.printed for s in specs} == {True, False}
+
+
+def test_a_task_draws_among_its_own_states_and_keeps_the_scenes_it_shares():
+    """The unfold task starts with the cloth on the table: a seed that would start it held
+    draws a table state instead, and every other seed draws the same scene as before."""
+    seeds = range(1, 81, 2)
+    every = [laundry_spec(seed, view="room") for seed in seeds]
+    table = [laundry_spec(seed, view="room", states=TABLE_STATES) for seed in seeds]
+    assert {s.state for s in table} == set(TABLE_STATES)
+    held = [i for i, s in enumerate(every) if s.state == "held"]
+    assert 5 <= len(held) <= 20  # a quarter of the seeds, drawn anew among the others
+    for i, (a, b) in enumerate(zip(every, table)):
+        if i in held:
+            assert b.state in TABLE_STATES and b.cloth_kind == a.cloth_kind
+        else:
+            assert a.describe() == b.describe()
+            np.testing.assert_array_equal(a.cloth_vertices_world, b.cloth_vertices_world)
+            np.testing.assert_array_equal(a.T_world_cam, b.T_world_cam)
+    assert laundry_spec(5, state="held", states=TABLE_STATES).state == "held"  # forcing still wins
+    with pytest.raises(ValueError, match="states: expected some of"):
+        laundry_spec(5, states=("lying",))
+    with pytest.raises(ValueError, match="states: expected some of"):
+        laundry_spec(5, states=())
 
 
 def test_camera_looks_down_at_the_cloth_from_one_to_one_and_a_third_metres():
