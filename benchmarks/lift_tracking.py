@@ -57,10 +57,10 @@ VARIANTS = (
 def record_lift(seed: int, state: str | None) -> dict:
     """The frames of one lift, the true cloth at each, the phase and the gripper (camera frame)."""
     from sim.grasp_execution import ExecutionConfig, GraspPose, close_fingers, fingertip_target, move_grippers
-    from sim.laundry import LaundryScene, laundry_spec, mask_from_reference
+    from sim.laundry import TABLE_STATES, LaundryScene, laundry_spec, mask_from_reference
     from sim.laundry.unfold import UnfoldConfig, arm_for, lift_target
 
-    spec = laundry_spec(seed, view="room", **({"state": state} if state else {}))
+    spec = laundry_spec(seed, view="room", states=TABLE_STATES, **({"state": state} if state else {}))
     out = {"frames": [], "truth": [], "phase": [], "grip": []}
     with LaundryScene(spec, noise=True, known_occluders=True) as scene:
         reference = scene.render_empty()

@@ -66,6 +66,7 @@ from launch_scripts.trial_runner.trial import (
     run_trial,
     scene_record,
     trial_config_dict,
+    trial_spec,
 )
 from launch_scripts.trial_runner.unfold import REGRASPS
 from sim.laundry import CLOTH_KINDS, INITIAL_STATES
@@ -131,7 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
 def _lost(seed: int, config: TrialConfig, failure: str) -> dict:
     """The record of a trial whose process died before it could report."""
     record = {"seed": seed, "task": config.task, "kind": config.kind, "success": False, "corner_success": False,
-              "failure": failure, "scene": scene_record(seed, config.scene_options)}
+              "failure": failure, "scene": scene_record(trial_spec(seed, config))}
     if config.task == "unfold":
         record["regrasp"] = config.regrasp
     return record

@@ -41,8 +41,9 @@ class Segment:
     """The object found around a prediction.
 
     mask : (H, W) bool, the object
-    unsearched : (H, W) bool, the pixels beyond the search margin: the mask stops there
-        because the search did, so its outline there is not the object's edge
+    unsearched : (H, W) bool, the pixels beyond the search (the search margin; with the
+        empty workspace known, the prediction's box grown by ``EXTENT_REACH`` margins): the
+        mask stops there because the search did, so its outline there is not the object's edge
     leak : in [0, 1], the fraction of the mask's edge that runs along the unsearched pixels
         (near 0 when the object lies within the search; high when it is continuous with a
         surface that goes on, such as a table the cloth lies on)
@@ -189,10 +190,12 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
         region, leak = _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg)
     out[y0:y1, x0:x1] = region
     if not_object is not None:
-        out &= ~not_object
-    if differs is not None and out.any():
-        allowed = differs if not_object is None else differs & ~not_object
-        out, unsearched, leak = _joined_differing(out, allowed, depth_m, predicted_mask, z_range, cfg)
+        out &= ~np.asarray(not_object, bool)
+    if differs is not None:
+        allowed = np.asarray(differs, bool) if not_object is None else np.asarray(differs, bool) & ~not_object
+        out &= allowed  # what does not differ from the empty workspace is not the object
+        if out.any():
+            out, unsearched, leak = _joined_differing(out, allowed, depth_m, predicted_mask, z_range, cfg)
     if not by_colour:
         return Segment(out, unsearched, leak)
     extent = object_extent(out, depth_m, predicted_mask, rgb, colour, cfg, not_object) if with_extent else None
@@ -208,9 +211,12 @@ def _joined_differing(mask: np.ndarray, differs: np.ndarray, depth_m: np.ndarray
     a grazing angle, and what it measures is continuous with the table, while colour models
     take a pale cloth on a grey table for the table. Against the empty workspace such a
     part still differs. A differing pixel joins through its 8 neighbours, within the
-    prediction's box grown by ``EXTENT_REACH`` search margins; one with depth only within
-    the search's depth band of the prediction and not across a step in depth (another
-    surface); one without depth freely.
+    prediction's box grown by ``EXTENT_REACH`` search margins. One with depth joins only
+    within the search's depth band of the prediction and not on a step in depth (another
+    surface); one without depth only where the depths measured within ``BRIDGE_PX / 2`` of
+    it lie at one level, or none is (the band without depth beside a nearer hand has the
+    hand's depth on one side and the cloth's on the other). Pixels of ``mask`` on a step
+    stay in it but join nothing through it.
 
     Returns (mask, unsearched, leak) as ``Segment``'s: unsearched is what lies outside the
     box, leak the fraction of the mask's edge on the box's rim inside the image.
@@ -220,13 +226,17 @@ def _joined_differing(mask: np.ndarray, differs: np.ndarray, depth_m: np.ndarray
     found = mask[y0:y1, x0:x1]
     depth = depth_m[y0:y1, x0:x1]
     valid = valid_depth(depth)
-    d = np.where(valid, depth, 0.0)
-    in_band = (d > z_range[0] - cfg.depth_band_m) & (d < z_range[1] + cfg.depth_band_m) & ~_jumps(depth, cfg)
-    passable = found | (differs[y0:y1, x0:x1] & np.where(valid, in_band, True))
+    d = np.where(valid, depth, 0.0).astype(np.float32)
+    with_depth = (d > z_range[0] - cfg.depth_band_m) & (d < z_range[1] + cfg.depth_band_m) & ~_jumps(depth, cfg)
+    window = np.ones((BRIDGE_PX + 1,) * 2, np.uint8)
+    farthest = cv2.dilate(d, window)
+    nearest = cv2.erode(np.where(valid, d, np.float32(np.inf)), window)
+    level = ~np.isfinite(nearest) | (farthest - nearest < cfg.edge_jump_m + cfg.edge_jump_rel * farthest)
+    passable = (found | differs[y0:y1, x0:x1]) & np.where(valid, with_depth, level)
     n, labels = cv2.connectedComponents(passable.astype(np.uint8), connectivity=8)
-    joined = np.bincount(labels[found], minlength=n) > 0
+    joined = np.bincount(labels[found & passable], minlength=n) > 0
     joined[0] = False
-    grown = joined[labels]
+    grown = joined[labels] | found
     out = np.zeros((h, w), bool)
     out[y0:y1, x0:x1] = grown
     unsearched = np.ones((h, w), bool)

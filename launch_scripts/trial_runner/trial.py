@@ -295,11 +295,20 @@ class _Link:
         raise TimeoutError(f"no plan on estimate {last_seq} within {self.config.plan_timeout_s:.0f} s ({why})")
 
 
-def scene_record(seed: int, scene_options: dict | None = None, spec=None) -> dict:
-    """What the seed drew, for a trial's record: cloth kind, size (m), printed, initial state."""
-    from sim.laundry import laundry_spec
+def trial_spec(seed: int, config: TrialConfig):
+    """The laundry scene (``sim.laundry.LaundrySpec``) a trial of ``config`` runs on ``seed``:
+    the unfold task's cloth starts on the table, and its camera stands back to see the lifted
+    cloth."""
+    from sim.laundry import INITIAL_STATES, TABLE_STATES, laundry_spec
 
-    spec = spec if spec is not None else laundry_spec(seed, **(scene_options or {}))
+    unfold = config.task == "unfold"
+    return laundry_spec(seed, view="room" if unfold else "table", states=TABLE_STATES if unfold else INITIAL_STATES,
+                        **config.scene_options)
+
+
+def scene_record(spec) -> dict:
+    """What a trial's seed drew (``LaundrySpec``), for its record: cloth kind, size (m), printed,
+    initial state."""
     w, h = spec.cloth.size_m
     return {"cloth": spec.cloth_kind, "size_m": [round(w, 3), round(h, 3)], "printed": spec.printed,
             "state": spec.state}
@@ -345,7 +354,7 @@ def run_trial(seed: int, config: TrialConfig | None = None,
     from ipc.transport import Publisher
     from launch_scripts.planner_service import arguments_from_config
     from launch_scripts.trial_runner.unfold import run_unfold
-    from sim.laundry import INITIAL_STATES, TABLE_STATES, LaundryScene, laundry_spec
+    from sim.laundry import LaundryScene
 
     config = config if config is not None else TrialConfig()
     choose_plan = choose_plan if choose_plan is not None else default_controller(config.kind)
@@ -358,11 +367,8 @@ def run_trial(seed: int, config: TrialConfig | None = None,
         record["arm"] = config.arm
     with contextlib.ExitStack() as stack:
         try:
-            # the unfold task's cloth starts on the table, and its camera stands back to see the
-            # lifted cloth; the robot knows its own arms
-            spec = laundry_spec(seed, view="room" if unfold else "table",
-                                states=TABLE_STATES if unfold else INITIAL_STATES, **config.scene_options)
-            record["scene"] = scene_record(seed, spec=spec)
+            spec = trial_spec(seed, config)
+            record["scene"] = scene_record(spec)
             scene = stack.enter_context(LaundryScene(spec, noise=config.noise, known_occluders=unfold, arm=config.arm))
             log_dir = Path(config.log_dir) / f"seed{seed}" if config.log_dir else Path(
                 stack.enter_context(tempfile.TemporaryDirectory(prefix="clothkit_trial_")))

@@ -218,8 +218,8 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
         raise ValueError(f"unknown initial state {state!r}; expected one of {', '.join(INITIAL_STATES)}")
     if cloth_kind is not None and cloth_kind not in CLOTH_KINDS:
         raise ValueError(f"unknown cloth kind {cloth_kind!r}; expected one of {', '.join(CLOTH_KINDS)}")
-    if not states or any(s not in INITIAL_STATES for s in states):
-        raise ValueError(f"states: expected some of {', '.join(INITIAL_STATES)}, got {states!r}")
+    if not states or len(set(states)) != len(states) or any(s not in INITIAL_STATES for s in states):
+        raise ValueError(f"states: expected some of {', '.join(INITIAL_STATES)}, each once, got {states!r}")
     camera = camera if camera is not None else kinect_camera(640, 480)
     scene_seq, _ = np.random.SeedSequence(seed).spawn(2)
     rng = np.random.default_rng(scene_seq)

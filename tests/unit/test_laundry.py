@@ -116,6 +116,8 @@ def test_a_task_draws_among_its_own_states_and_keeps_the_scenes_it_shares():
         laundry_spec(5, states=("lying",))
     with pytest.raises(ValueError, match="states: expected some of"):
         laundry_spec(5, states=())
+    with pytest.raises(ValueError, match="states: expected some of"):
+        laundry_spec(5, states=("flat", "flat"))
 
 
 def test_camera_looks_down_at_the_cloth_from_one_to_one_and_a_third_metres():

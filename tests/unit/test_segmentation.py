@@ -111,8 +111,9 @@ def test_with_the_empty_workspace_the_object_takes_in_what_differs_from_it():
     """A cloth on a table at the table's depth, its left third without depth (seen at a
     grazing angle); the mesh lost that third, so the search misses it. What differs from the
     empty workspace and joins the cloth is the cloth, with or without depth; a box 40 cm
-    nearer that differs too and touches it (across a band without depth) is not, nor is a
-    robot arm on the cloth that the frame masks."""
+    nearer that differs too and touches it (across a band without depth) is not, nor are two
+    hands 8 cm nearer, one touching it and one beyond a band without depth, nor a robot arm
+    on the cloth that the frame masks."""
     depth = np.full((H, W), 1.3, np.float32)
     cloth, box, arm = np.zeros((H, W), bool), np.zeros((H, W), bool), np.zeros((H, W), bool)
     cloth[60:180, 50:280] = True
@@ -121,8 +122,14 @@ def test_with_the_empty_workspace_the_object_takes_in_what_differs_from_it():
     depth[box] = 0.9
     depth[58:60, 150:230] = 0.0  # the sensor's shadow beside the box
     arm[100:140, 200:320] = True
-    differs = cloth | box | arm
+    hands = np.zeros((H, W), bool)
+    hands[60:90, 280:300] = True  # touching the cloth's edge
+    hands[150:180, 283:300] = True  # beyond the sensor's shadow
+    depth[hands] = 1.22
+    depth[150:180, 280:283] = 0.0
+    differs = cloth | box | arm | hands
     differs[58:60, 150:230] = True
+    differs[150:180, 280:283] = True
     predicted = np.zeros((H, W), bool)
     predicted[60:180, 160:280] = True
     not_object = arm | ~differs
@@ -131,7 +138,7 @@ def test_with_the_empty_workspace_the_object_takes_in_what_differs_from_it():
     segment = segment_tracked(depth, predicted, (1.28, 1.32), SegmentationConfig(), not_object=not_object,
                               differs=differs)
     assert iou(segment.mask, cloth & ~arm) > 0.97
-    assert not segment.mask[box].any() and not segment.mask[arm].any()
+    assert not segment.mask[box].any() and not segment.mask[arm].any() and segment.mask[hands].sum() < 10
     assert not segment.unsearched[cloth].any() and segment.leak < 0.05
     # with the object beyond reach of the search, its edge there is not where it ends
     edge_only = np.zeros((H, W), bool)
