@@ -213,10 +213,12 @@ def _joined_differing(mask: np.ndarray, differs: np.ndarray, depth_m: np.ndarray
     part still differs. A differing pixel joins through its 8 neighbours, within the
     prediction's box grown by ``EXTENT_REACH`` search margins. One with depth joins only
     within the search's depth band of the prediction and not on a step in depth (another
-    surface); one without depth only where the depths measured within ``BRIDGE_PX / 2`` of
-    it lie at one level, or none is (the band without depth beside a nearer hand has the
-    hand's depth on one side and the cloth's on the other). Pixels of ``mask`` on a step
-    stay in it but join nothing through it.
+    surface); pixels of ``mask`` on a step stay in it but join nothing through it. One
+    without depth joins freely: a surface seen at a grazing angle changes depth by a
+    centimetre or more a pixel, so no test of its neighbours' depths tells it from the band
+    the sensor loses beside a nearer object, and an object in front that differs and lies
+    beyond such a band joins, unless it is masked (a known occluder, or one the tracker
+    found in front, ``perception.occluders``).
 
     Returns (mask, unsearched, leak) as ``Segment``'s: unsearched is what lies outside the
     box, leak the fraction of the mask's edge on the box's rim inside the image.
@@ -226,13 +228,9 @@ def _joined_differing(mask: np.ndarray, differs: np.ndarray, depth_m: np.ndarray
     found = mask[y0:y1, x0:x1]
     depth = depth_m[y0:y1, x0:x1]
     valid = valid_depth(depth)
-    d = np.where(valid, depth, 0.0).astype(np.float32)
+    d = np.where(valid, depth, 0.0)
     with_depth = (d > z_range[0] - cfg.depth_band_m) & (d < z_range[1] + cfg.depth_band_m) & ~_jumps(depth, cfg)
-    window = np.ones((BRIDGE_PX + 1,) * 2, np.uint8)
-    farthest = cv2.dilate(d, window)
-    nearest = cv2.erode(np.where(valid, d, np.float32(np.inf)), window)
-    level = ~np.isfinite(nearest) | (farthest - nearest < cfg.edge_jump_m + cfg.edge_jump_rel * farthest)
-    passable = (found | differs[y0:y1, x0:x1]) & np.where(valid, with_depth, level)
+    passable = (found | differs[y0:y1, x0:x1]) & (with_depth | ~valid)
     n, labels = cv2.connectedComponents(passable.astype(np.uint8), connectivity=8)
     joined = np.bincount(labels[found & passable], minlength=n) > 0
     joined[0] = False
