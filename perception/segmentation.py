@@ -189,10 +189,11 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
         candidate &= (p >= 0.5) | (pred & ~_uncovered(pred, p))
         region, leak = _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg)
     out[y0:y1, x0:x1] = region
-    if not_object is not None:
-        out &= ~np.asarray(not_object, bool)
+    excluded = None if not_object is None else np.asarray(not_object, bool)
+    if excluded is not None:
+        out &= ~excluded
     if differs is not None:
-        allowed = np.asarray(differs, bool) if not_object is None else np.asarray(differs, bool) & ~not_object
+        allowed = np.asarray(differs, bool) if excluded is None else np.asarray(differs, bool) & ~excluded
         out &= allowed  # what does not differ from the empty workspace is not the object
         if out.any():
             out, unsearched, leak = _joined_differing(out, allowed, depth_m, predicted_mask, z_range, cfg)
