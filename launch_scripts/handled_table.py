@@ -156,7 +156,7 @@ def pooled_rows(results: dict) -> list[dict]:
                     row["area_ratio_worst"] = float(worst[np.argmax(np.abs(np.subtract(worst, 1.0)))]) if worst else None
                     for k in ("frames", "lost_frames", "wrong_frames", "wrong_confident_frames",
                               "wrong_unflagged_late_frames", "new_meshes"):
-                        row[k] = int(sum(m.get(k, 0) for m in scored))
+                        row[k] = int(sum(m[k] for m in scored))
                     row["median_ms"] = float(np.median([m["median_ms"] for m in scored if m["median_ms"] is not None]))
                 rows.append(row)
     return rows

@@ -193,7 +193,9 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
     if excluded is not None:
         out &= ~excluded
     if differs is not None:
-        allowed = np.asarray(differs, bool) if excluded is None else np.asarray(differs, bool) & ~excluded
+        allowed = np.asarray(differs, bool)
+        if excluded is not None:
+            allowed = allowed & ~excluded
         out &= allowed  # what does not differ from the empty workspace is not the object
         if out.any():
             out, unsearched, leak = _joined_differing(out, allowed, depth_m, predicted_mask, z_range, cfg)

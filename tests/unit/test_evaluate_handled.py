@@ -23,8 +23,8 @@ def test_bad_options_stop_with_one_line(tmp_path, capsys, args, message):
 def _summary(mean, frames=10, lost=0, confident_wrong=0, area=None, late=0):
     return {"frames": frames, "mean_mm": mean, "p95_mm": 2 * mean, "occluded_area_ratio": area,
             "occluded_area_ratio_worst": None if area is None else area - 0.1, "lost_frames": lost, "wrong_frames": lost,
-            "wrong_confident_frames": confident_wrong, "wrong_unflagged_late_frames": late, "median_ms": 20.0,
-            "failure": ""}
+            "wrong_confident_frames": confident_wrong, "wrong_unflagged_late_frames": late, "new_meshes": 0,
+            "median_ms": 20.0, "failure": ""}
 
 
 def _seed(scale):
