@@ -18,6 +18,7 @@ import cv2
 import numpy as np
 
 from ipc.messages import RGBDFrame
+from perception.geometry import pixel_index, project
 
 log = logging.getLogger(__name__)
 
@@ -27,6 +28,9 @@ log = logging.getLogger(__name__)
 COLOUR_TOL = 12.0
 #: A pixel nearer than the background by more than this differs, metres.
 DEPTH_TOL_M = 0.02
+#: Pixels this close to a differing one are not taken for the empty workspace: an outline
+#: blurs over a pixel or two, and ``differs_from_background`` opens and closes with 5x5.
+EDGE_PX = 3
 
 
 def check_background(background: RGBDFrame, frame: RGBDFrame) -> None:
@@ -59,3 +63,24 @@ def differs_from_background(frame: RGBDFrame, background: RGBDFrame, colour_tol:
     kernel = np.ones((5, 5), np.uint8)
     m = cv2.morphologyEx((differs | nearer).astype(np.uint8), cv2.MORPH_OPEN, kernel)
     return cv2.morphologyEx(m, cv2.MORPH_CLOSE, kernel).astype(bool)
+
+
+def seen_through(vertices: np.ndarray, K: np.ndarray, differs: np.ndarray, depth_m: np.ndarray,
+                 tol_m: float) -> np.ndarray:
+    """(N,) bool: the vertices (N, 3) the camera sees the empty workspace through.
+
+    Such a vertex projects into the image onto a pixel that shows the empty workspace (it does
+    not differ from it, ``differs`` (H, W) bool, nor lies within ``EDGE_PX`` of a pixel that
+    does), and lies nearer than the surface measured there by more than ``tol_m``, or the
+    pixel has no depth. Nothing stands in front of the workspace at such a pixel, so the
+    vertex is in the air. A vertex farther than the surface seen may be hidden by the
+    workspace itself (a cloth hanging behind a table's edge) and is not counted; nor is one
+    on it (a cloth of the table's colour lying on the table).
+    """
+    h, w = differs.shape
+    near_object = cv2.dilate(differs.astype(np.uint8), np.ones((2 * EDGE_PX + 1,) * 2, np.uint8)).astype(bool)
+    cols, rows, inside = pixel_index(project(vertices, K), w, h)
+    d = depth_m[rows, cols]
+    with np.errstate(invalid="ignore"):
+        in_front = ~(np.isfinite(d) & (d > 0)) | (vertices[:, 2] < d - tol_m)
+    return inside & ~near_object[rows, cols] & in_front

@@ -33,7 +33,15 @@ that is right scores about 1 on it:
   by its neighbours and the motion prior; while the cloth lies still that holds, but a part
   that moved several centimetres since the camera last saw it (a corner folding over as the
   cloth is lifted) may be anywhere along the way. A fifth of the mesh so carried costs
-  nothing; more lowers the cue, to 0 at ``CARRIED_NONE`` of it.
+  nothing; more lowers the cue, to 0 at ``CARRIED_NONE`` of it;
+- ``opaque``: how little of the mesh the camera sees the empty workspace through, where the
+  workspace was captured empty (``MeshTracker.initialise(background=...)``). A pixel that
+  shows the empty workspace has nothing in front of it, so a vertex in view there, nearer
+  than the surface seen, is in the air beside the cloth. Depth and precision cannot see it:
+  such a vertex usually has no depth at its pixel (a wall beyond the sensor's range) or is
+  taken as hidden. A right mesh lies there only along the outline's blur; a mesh whose
+  material slid along a hanging cloth sticks out beside it. Up to ``EXPOSED_ALL`` of the
+  vertices in view so exposed cost nothing; at ``EXPOSED_NONE`` the cue is 0.
 
 Arrays: vertices (N, 3) metres, camera frame; images and masks (H, W).
 """
@@ -52,6 +60,9 @@ FLOOR = 0.25
 #: share of the mesh hidden and moved far since last seen: up to the first, the ``followed``
 #: cue is 1; at the second, 0
 CARRIED_ALL, CARRIED_NONE = 0.2, 0.45
+#: share of the vertices in view seen through to the empty workspace: up to the first, the
+#: ``opaque`` cue is 1; at the second, 0
+EXPOSED_ALL, EXPOSED_NONE = 0.04, 0.12
 
 
 @dataclass(frozen=True)
@@ -66,11 +77,12 @@ class Assessment:
     uncrumpled: float
     seen: float
     followed: float
+    opaque: float = 1.0
 
     @property
     def confidence(self) -> float:
         product = (self.depth * self.coverage * self.precision * self.appearance * self.unstretched * self.uncrumpled
-                   * self.seen * self.followed)
+                   * self.seen * self.followed * self.opaque)
         return float(np.clip(product, 0.0, 1.0))
 
     def lost(self, threshold: float) -> bool:
@@ -88,7 +100,8 @@ def _ramp(value: float, good: float) -> float:
 
 def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, visible: np.ndarray,
            depth_m: np.ndarray, object_mask: np.ndarray, K: np.ndarray, tol_m: float, appearance: float,
-           leak: float = 0.0, carried: float = 0.0, extent: np.ndarray | None = None) -> Assessment:
+           leak: float = 0.0, carried: float = 0.0, extent: np.ndarray | None = None,
+           exposed: np.ndarray | None = None) -> Assessment:
     """The Assessment of an estimate.
 
     vertices : (N, 3); visible : (N,) bool, the vertices seen
@@ -106,6 +119,8 @@ def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, 
     extent : (H, W) bool, the object as far as its colour reaches beyond the segmentation's
         search (``perception.segmentation.Segment.extent``, known occluders excluded), or
         None: what coverage is measured on
+    exposed : (N,) bool, the vertices the camera sees the empty workspace through
+        (``perception.background.seen_through``), or None where the workspace is not known
     """
     n = len(vertices)
     h, w = depth_m.shape
@@ -138,8 +153,13 @@ def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, 
     lengths = np.linalg.norm(vertices[edges[:, 0]] - vertices[edges[:, 1]], axis=1) / np.maximum(rest_lengths_m, 1e-9)
     stretch = float(np.median(lengths))
     crushed = float(np.mean(lengths < 0.5))
+    opaque = 1.0
+    if exposed is not None and inside.any():
+        share = float((exposed & inside).sum() / inside.sum())
+        opaque = float(np.clip((EXPOSED_NONE - share) / (EXPOSED_NONE - EXPOSED_ALL), 0.0, 1.0))
     return Assessment(depth=_ramp(depth, 0.85), coverage=_ramp(coverage, 0.8), precision=_ramp(precision, 0.85),
                       appearance=float(appearance), unstretched=float(np.clip((1.35 - stretch) / 0.25, 0.0, 1.0)),
                       uncrumpled=float(np.clip((0.15 - crushed) / 0.09, 0.0, 1.0)),
                       seen=_ramp(seen.sum() / max(n, 1), 0.25),
-                      followed=float(np.clip((CARRIED_NONE - carried) / (CARRIED_NONE - CARRIED_ALL), 0.0, 1.0)))
+                      followed=float(np.clip((CARRIED_NONE - carried) / (CARRIED_NONE - CARRIED_ALL), 0.0, 1.0)),
+                      opaque=opaque)

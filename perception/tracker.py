@@ -41,7 +41,7 @@ from threadpoolctl import ThreadpoolController
 
 from ipc.messages import MeshEstimate, RGBDFrame
 from perception.appearance import AppearanceModel
-from perception.background import check_background, differs_from_background
+from perception.background import check_background, differs_from_background, seen_through
 from perception.coarse import MIN_RESPONSE, FrameMemory
 from perception.colour_model import ColourModel
 from perception.confidence import Assessment, assess
@@ -472,7 +472,7 @@ class MeshTracker:
         self._stretch = StretchTerm(self._edges, self._rest_lengths, n_vertices=len(V))
         self._tethers = Tethers(V, mesh.faces)
         self._last_seen = V.copy()
-        assessment = self._assess(V, frame, visible, obs.mask)
+        assessment = self._assess(V, frame, visible, obs.mask, differs=self._differs(frame))
         log.info("initialised mesh: %d vertices, %d faces, %d boundary, %d features", mesh.n_vertices,
                  len(mesh.faces), len(mesh.boundary), self._corr.n_model if self._corr else 0)
         return self._estimate(frame, V, res.energies, res.iterations, assessment, t0, visible)
@@ -634,7 +634,7 @@ class MeshTracker:
         V = res.vertices
         visible = self._states(V, frame) == VISIBLE
         carried, last_seen = self._carried(V, visible, frame)
-        assessment = self._assess(V, frame, visible, mask, segment.leak, carried, segment.extent)
+        assessment = self._assess(V, frame, visible, mask, segment.leak, carried, segment.extent, differs)
         if assessment.lost(cfg.lost_confidence):
             log.debug("frame %d: registration's placement rejected (%s)", frame.seq, assessment.as_dict())
             return self._placement_failed(frame, t0)
@@ -879,7 +879,7 @@ class MeshTracker:
             energies["inliers"] = float(corr.weights.sum())
         visible = self._states(V, frame) == VISIBLE
         carried, self._last_seen = self._carried(V, visible, frame)
-        assessment = self._assess(V, frame, visible, mask, segment.leak, carried, extent.result())
+        assessment = self._assess(V, frame, visible, mask, segment.leak, carried, extent.result(), differs)
         return self._estimate(frame, V, energies, iterations, assessment, t0, visible)
 
     def _carried(self, V: np.ndarray, visible: np.ndarray, frame: RGBDFrame) -> tuple[float, np.ndarray]:
@@ -897,16 +897,19 @@ class MeshTracker:
     # -- outputs -------------------------------------------------------------------------
 
     def _assess(self, V: np.ndarray, frame: RGBDFrame, visible: np.ndarray, object_mask: np.ndarray,
-                leak: float = 0.0, carried: float = 0.0, extent: np.ndarray | None = None) -> Assessment:
+                leak: float = 0.0, carried: float = 0.0, extent: np.ndarray | None = None,
+                differs: np.ndarray | None = None) -> Assessment:
         """The evidence for estimate ``V`` (N, 3) in ``frame`` (``perception.confidence``);
         ``leak`` and ``extent`` are the segmentation's (``perception.segmentation.Segment``),
-        ``carried`` the share of the mesh moved far while hidden (``_carried``)."""
+        ``carried`` the share of the mesh moved far while hidden (``_carried``), ``differs``
+        the frame's pixels that differ from the empty workspace (``_differs``), if known."""
         K = frame.camera.K
+        exposed = None if differs is None else seen_through(V, K, differs, frame.depth_m, self.config.confidence_tol_m)
         likeness = 1.0
         if self._appearance is not None:
             likeness = self._appearance.likeness(frame.rgb, V, self.mesh.faces, K, visible)
         assessment = assess(V, self._edges, self._rest_lengths, visible, frame.depth_m, object_mask,
-                            K, self.config.confidence_tol_m, likeness, leak, carried, extent)
+                            K, self.config.confidence_tol_m, likeness, leak, carried, extent, exposed)
         self.last_assessment = assessment
         return assessment
 

@@ -9,7 +9,8 @@ import pytest
 
 from ipc.messages import CameraInfo, RGBDFrame
 from perception import MeshTracker, TrackerConfig
-from perception.background import differs_from_background
+from perception.background import differs_from_background, seen_through
+from perception.confidence import FLOOR, assess
 from perception.tracker import TrackingError
 from tests.render import frame_of, grid_surface, plane_points, texture
 
@@ -81,6 +82,42 @@ def test_with_a_background_only_what_differs_from_it_is_the_object(tex):
         small = RGBDFrame(np.zeros((10, 10, 3), np.uint8), np.zeros((10, 10), np.float32),
                           CameraInfo.from_fov(10, 10, 1.0))
         MeshTracker(TrackerConfig()).initialise(frame, mask=frame.depth_m < TABLE_M - 0.005, background=small)
+
+
+def _edges(faces):
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    return np.unique(e, axis=0)
+
+
+def test_a_mesh_beside_the_lifted_sheet_is_seen_through_to_the_empty_workspace(tex):
+    """Where the camera sees the empty workspace nothing stands in front of it: a vertex in
+    view there, nearer than the surface seen, is in the air beside the cloth. The tracked lift
+    has none; the true sheet moved 12 cm sideways hangs its lifted half in the air, which
+    depth cannot see (those vertices match nothing) and the confidence must. Vertices lying
+    on the workspace (the flat half, slid along the table) or behind it are not counted."""
+    tracker, errors = track_lift(tex, empty_table())
+    assert errors.max() < 0.005 and tracker.last_assessment.opaque == 1.0
+    frame = sheet_on_table(hinged(UV, 8), tex, 8)
+    differs = differs_from_background(frame, empty_table())
+    true = hinged(UV, 8)
+    assert not seen_through(true, CAM.K, differs, frame.depth_m, 0.03).any()
+    aside = true + np.array([0.0, 0.12, 0.0])
+    exposed = seen_through(aside, CAM.K, differs, frame.depth_m, 0.03)
+    beyond = UV[:, 1] > SIZE[1] - 0.12 + 0.01  # off the sheet's edge, a centimetre clear of its blur
+    lifted = true[:, 2] < TABLE_M - 0.04
+    assert exposed[beyond & lifted].mean() > 0.95
+    assert not exposed[~beyond].any() and not exposed[beyond & ~lifted & (true[:, 2] > 1.29)].any()
+    behind = aside + np.array([0.0, 0.0, 0.5])  # as far behind the wall: the wall may hide it
+    assert not seen_through(behind, CAM.K, differs, frame.depth_m, 0.03).any()
+
+    edges = _edges(FACES)
+    rest = np.linalg.norm(true[edges[:, 0]] - true[edges[:, 1]], axis=1)
+    on_sheet = frame.depth_m < TABLE_M - 0.005
+    cues = [assess(V, edges, rest, np.ones(len(V), bool), frame.depth_m, on_sheet, CAM.K, 0.03, 1.0,
+                   exposed=seen_through(V, CAM.K, differs, frame.depth_m, 0.03)) for V in (true, aside)]
+    assert cues[0].opaque == 1.0 and cues[1].opaque < FLOOR and cues[1].lost(0.4)
+    without = assess(aside, edges, rest, np.ones(len(UV), bool), frame.depth_m, on_sheet, CAM.K, 0.03, 1.0)
+    assert without.opaque == 1.0  # no empty workspace given, nothing said
 
 
 def test_a_held_vertex_follows_the_gripper_where_the_camera_cannot_see_it(tex):
