@@ -1,7 +1,8 @@
 """Tracking a cloth lifted off a table by one corner: the tracker's error during the lift and
 while the cloth hangs, with and without what the robot knows (its empty table, the vertex it
-holds and where, the material point hanging lowest and where), the stretch term and the
-tethers (no point of the cloth farther from the held one than along the cloth).
+holds and where, the material point hanging lowest and where), the stretch term, the
+tethers (no point of the cloth farther from the held one than along the cloth) and, on a
+printed cloth, its first frame's texture found again in each frame.
 
     python benchmarks/lift_tracking.py --seeds 2 4 22 [--state flat] [--markdown OUT.md]
 
@@ -40,17 +41,22 @@ from sim.ground_truth import bind_to_surface, surface_points, vertex_errors  # n
 #: That tracker measures depth along the surface's normal, has the fold test
 #: (``self_occlusion``) and the outside term (``lambda_o``), two variants go without them; and
 #: it keeps every vertex within reach of the held points along the cloth (``tether``,
-#: ``perception.tether``), which all but the last variant go without.
+#: ``perception.tether``), which all but the last two variants go without; and on a printed
+#: cloth it finds its first frame's texture again in each frame (``anchor_points``,
+#: ``perception.anchors``), which all but the last go without.
 VARIANTS = (
-    ("without the stretch term", {"lambda_l": 0.0}, False, False, False),
-    ("+ stretch term", {}, False, False, False),
-    ("+ background, hold", {"lambda_l": 0.0, "tether": False}, True, True, False),
+    ("without the stretch term", {"lambda_l": 0.0, "anchor_points": 0}, False, False, False),
+    ("+ stretch term", {"anchor_points": 0}, False, False, False),
+    ("+ background, hold", {"lambda_l": 0.0, "tether": False, "anchor_points": 0}, True, True, False),
     ("+ stretch, background, hold; depth along rays, no fold test, no outside term",
-     {"depth_residual": "ray", "self_occlusion": False, "lambda_o": 0.0, "tether": False}, True, True, False),
-    ("+ stretch, background, hold; depth along rays", {"depth_residual": "ray", "tether": False}, True, True, False),
-    ("+ stretch, background, hold", {"tether": False}, True, True, False),
-    ("+ stretch, background, hold, lowest point", {"tether": False}, True, True, True),
-    ("+ stretch, background, hold, lowest point, tethers (the unfold trials')", {}, True, True, True),
+     {"depth_residual": "ray", "self_occlusion": False, "lambda_o": 0.0, "tether": False, "anchor_points": 0},
+     True, True, False),
+    ("+ stretch, background, hold; depth along rays", {"depth_residual": "ray", "tether": False, "anchor_points": 0},
+     True, True, False),
+    ("+ stretch, background, hold", {"tether": False, "anchor_points": 0}, True, True, False),
+    ("+ stretch, background, hold, lowest point", {"tether": False, "anchor_points": 0}, True, True, True),
+    ("+ stretch, background, hold, lowest point, tethers", {"anchor_points": 0}, True, True, True),
+    ("+ stretch, background, hold, lowest point, tethers, texture anchors (the unfold trials')", {}, True, True, True),
 )
 
 

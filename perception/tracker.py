@@ -40,6 +40,7 @@ import numpy as np
 from threadpoolctl import ThreadpoolController
 
 from ipc.messages import MeshEstimate, RGBDFrame
+from perception.anchors import TextureAnchors
 from perception.appearance import AppearanceModel
 from perception.background import check_background, differs_from_background, seen_through
 from perception.coarse import MIN_RESPONSE, FrameMemory
@@ -155,6 +156,10 @@ class TrackerConfig:
     match_gate_px : a match must lie within this distance of its predicted location
     match_keep_fraction : the paper keeps the best half of the matches
     match_previous_frame : also match the previous frame's features (bound through the estimate)
+    anchor_points : on a textured object, corners of the first frame's texture drawn at the
+        predicted mesh that are followed into each frame (``perception.anchors``): material
+        points found without binding through an estimate, so the mesh cannot drift off the
+        print (0, the default: none)
     feature_thread : track or detect features on a second thread while the frame is segmented,
         and find the object's extent for the confidence there while the mesh is minimised
         (the same results either way; off keeps the tracker on one core)
@@ -222,6 +227,7 @@ class TrackerConfig:
     match_gate_px: float = 40.0
     match_keep_fraction: float = 0.5
     match_previous_frame: bool = True
+    anchor_points: int = 0
     feature_thread: bool = True
     outlier_radii_m: tuple = (0.05, 0.02)
     depth_window_px: int = 5
@@ -259,6 +265,8 @@ class TrackerConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a non-negative number, got {v!r}")
+        if int(self.anchor_points) < 0:
+            raise ValueError(f"TrackerConfig.anchor_points: expected an integer >= 0, got {self.anchor_points!r}")
         if not 0 < self.match_keep_fraction <= 1:
             raise ValueError(f"TrackerConfig.match_keep_fraction: expected (0, 1], got {self.match_keep_fraction}")
         counts = ("max_iterations", "cg_iterations", "max_features", "depth_window_px", "target_vertices")
@@ -321,6 +329,7 @@ class MeshTracker:
         self.last_motion_scores: dict = {}
         self._appearance: AppearanceModel | None = None
         self._registration: GlobalRegistration | None = None
+        self._anchors: TextureAnchors | None = None
         self._colour: ColourModel | None = None
         self._background: RGBDFrame | None = None  # the empty workspace, undistorted
         self._background_given: RGBDFrame | None = None
@@ -354,7 +363,8 @@ class MeshTracker:
         if self.initialised:
             if (config.alpha, config.solver, config.cg_iterations) != (old.alpha, old.solver, old.cg_iterations):
                 self._solver = self._make_solver(self.mesh)
-            if (config.features, config.max_features) != (old.features, old.max_features):
+            if (config.features, config.max_features, config.anchor_points) != \
+                    (old.features, old.max_features, old.anchor_points):
                 log.warning("feature settings change at the next initialise")
 
     # -- checks --------------------------------------------------------------------------
@@ -464,6 +474,8 @@ class MeshTracker:
         visible = self._states(V, frame) == VISIBLE
         self._appearance = AppearanceModel(frame.rgb, V, mesh.faces, frame.camera.K, visible, mesh.spacing_m,
                                            mesh.boundary, mesh.canonical)
+        self._anchors = TextureAnchors(obs.grey, V, mesh.faces, visible, obs.K, cfg.anchor_points) \
+            if cfg.use_correspondence and cfg.anchor_points > 0 and self._appearance.textured else None
         self._colour = ColourModel(frame.rgb, obs.mask)
         self._registration = GlobalRegistration(resolve_kind("auto"), rng=self._rng)
         self._registration.build(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
@@ -853,6 +865,9 @@ class MeshTracker:
         if prepared is not None:
             fid, bary, xy = self._corr.match(obs.grey, self._feature_mask(mask), V_pred, faces, K, prepared.result(),
                                              face_state=face_states(state, faces))
+            if self._anchors is not None:
+                found = self._anchors.match(obs.grey, self._feature_mask(mask), V_pred, K)
+                fid, bary, xy = (np.concatenate(parts) for parts in zip((fid, bary, xy), found))
             pts, has = obs.points_at(xy)
             self.last_feature_xy = xy[has]
             if has.any():
