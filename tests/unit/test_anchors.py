@@ -63,3 +63,27 @@ def test_faces_not_seen_in_the_first_frame_are_not_drawn():
     assert (material_now(UV, FACES, face_ids, bary)[:, 0] < SIZE[0] / 2).all()
     assert len(TextureAnchors(grey(first), rest, FACES, left, CAM.K, max_points=0)
                .match(grey(first), first.depth_m < 2.0, rest, CAM.K)[0]) == 0
+
+
+def test_a_tracker_with_anchors_follows_a_bending_sheet_and_checks_the_count():
+    """Through the tracker (``TrackerConfig.anchor_points``): the anchors join the frame's
+    correspondences (a hundred and more beyond the KLT points of a tracker without them), and
+    the sheet bending over five frames is followed within a few millimetres."""
+    from perception import MeshTracker, TrackerConfig
+
+    with pytest.raises(ValueError, match="anchor_points: expected an integer >= 0"):
+        TrackerConfig(anchor_points=-1)
+    tex = texture(np.random.default_rng(5))
+    rest = plane_points(UV, CENTRE, SIZE)
+    inliers = {}
+    for n in (0, 200):
+        tracker = MeshTracker(TrackerConfig(features="klt", anchor_points=n))
+        e0 = tracker.initialise(frame_of(rest, UV, FACES, tex, CAM, SIZE))
+        material = e0.vertices[:, :2] - CENTRE[:2] + np.array(SIZE) / 2
+        for k in range(1, 6):
+            true = bent_points(UV, CENTRE + [0.006 * k, 0.0, 0.0], SIZE, radius_m=1.5 / k)
+            estimate = tracker.track(frame_of(true, UV, FACES, tex, CAM, SIZE, t=k / 30, seq=k))
+            expected = bent_points(material, CENTRE + [0.006 * k, 0.0, 0.0], SIZE, radius_m=1.5 / k)
+            assert np.linalg.norm(estimate.vertices - expected, axis=1).mean() < 0.005
+        inliers[n] = estimate.energies["inliers"]
+    assert inliers[200] > inliers[0] + 100, inliers
