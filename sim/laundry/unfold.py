@@ -41,7 +41,10 @@ class UnfoldConfig:
     hang_clearance_m : the lifted cloth's lowest point should hang this far above the table
     hang_s : the robot holds still this long, frames tracked, while the cloth comes to rest
     pinch_overtravel_m : the second gripper's fingertips go this far past the planned
-        corner along the approach, so that the jaw closes over the cloth's edge
+        corner along the approach, so that the jaw closes over the cloth's edge. The cloth is
+        held at the fingertips' centre, so every millimetre of it moves the held point inside
+        the corner: 5 mm (15 before) brought the second grasps 1 cm nearer their corners with
+        none closing on nothing (docs/results.md, "Unfolding")
     stretch_s : duration of the motion that brings both grippers level, ``pull_from`` times
         the planned material distance apart (``stretch_targets``)
     pull_speed_m_s : speed at which each gripper then moves outwards, frame by frame, while
@@ -79,7 +82,7 @@ class UnfoldConfig:
     lift_speed_m_s: float = 0.3
     hang_clearance_m: float = 0.15
     hang_s: float = 1.5
-    pinch_overtravel_m: float = 0.015
+    pinch_overtravel_m: float = 0.005
     stretch_s: float = 1.0
     pull_speed_m_s: float = 0.1
     taut_pull: float = 0.5
