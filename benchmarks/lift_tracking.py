@@ -44,18 +44,19 @@ from sim.ground_truth import bind_to_surface, surface_points, vertex_errors  # n
 #: ``perception.tether``), which all but the last two variants go without; and on a printed
 #: cloth it finds its first frame's texture again in each frame (``anchor_points``,
 #: ``perception.anchors``), which all but the last go without.
+NO_ANCHORS = {"anchor_points": 0}
 VARIANTS = (
-    ("without the stretch term", {"lambda_l": 0.0, "anchor_points": 0}, False, False, False),
-    ("+ stretch term", {"anchor_points": 0}, False, False, False),
-    ("+ background, hold", {"lambda_l": 0.0, "tether": False, "anchor_points": 0}, True, True, False),
+    ("without the stretch term", {**NO_ANCHORS, "lambda_l": 0.0}, False, False, False),
+    ("+ stretch term", NO_ANCHORS, False, False, False),
+    ("+ background, hold", {**NO_ANCHORS, "lambda_l": 0.0, "tether": False}, True, True, False),
     ("+ stretch, background, hold; depth along rays, no fold test, no outside term",
-     {"depth_residual": "ray", "self_occlusion": False, "lambda_o": 0.0, "tether": False, "anchor_points": 0},
+     {**NO_ANCHORS, "depth_residual": "ray", "self_occlusion": False, "lambda_o": 0.0, "tether": False},
      True, True, False),
-    ("+ stretch, background, hold; depth along rays", {"depth_residual": "ray", "tether": False, "anchor_points": 0},
+    ("+ stretch, background, hold; depth along rays", {**NO_ANCHORS, "depth_residual": "ray", "tether": False},
      True, True, False),
-    ("+ stretch, background, hold", {"tether": False, "anchor_points": 0}, True, True, False),
-    ("+ stretch, background, hold, lowest point", {"tether": False, "anchor_points": 0}, True, True, True),
-    ("+ stretch, background, hold, lowest point, tethers", {"anchor_points": 0}, True, True, True),
+    ("+ stretch, background, hold", {**NO_ANCHORS, "tether": False}, True, True, False),
+    ("+ stretch, background, hold, lowest point", {**NO_ANCHORS, "tether": False}, True, True, True),
+    ("+ stretch, background, hold, lowest point, tethers", NO_ANCHORS, True, True, True),
     ("+ stretch, background, hold, lowest point, tethers, texture anchors (the unfold trials')", {}, True, True, True),
 )
 

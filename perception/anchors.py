@@ -23,14 +23,11 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from perception.features import FB_MAX_PX, LK_PARAMS
 from perception.geometry import project
 from perception.mesh import barycentric_2d
 from perception.raster import face_index_image
 
-#: Lucas-Kanade as the KLT points use it: 15 px windows, two pyramid levels
-LK = dict(winSize=(15, 15), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
-#: a point is kept when tracking it back lands this close to where it started, pixels
-FB_MAX_PX = 1.0
 #: corners are looked for this far inside the drawn mesh (its rim mixes in the background), pixels
 RIM_PX = 3
 #: fewer drawn pixels than this inside the rim: too little of the mesh in view to look for corners
@@ -110,8 +107,8 @@ class TextureAnchors:
         if corners is None:
             self.last_found = 0
             return none
-        there, st, _ = cv2.calcOpticalFlowPyrLK(a, b, corners, None, **LK)
-        back, st_back, _ = cv2.calcOpticalFlowPyrLK(b, a, there, None, **LK)
+        there, st, _ = cv2.calcOpticalFlowPyrLK(a, b, corners, None, **LK_PARAMS)
+        back, st_back, _ = cv2.calcOpticalFlowPyrLK(b, a, there, None, **LK_PARAMS)
         p, q = corners.reshape(-1, 2), there.reshape(-1, 2)
         ok = (st.ravel() == 1) & (st_back.ravel() == 1) & (np.linalg.norm(back.reshape(-1, 2) - p, axis=1) < FB_MAX_PX)
         xy = q + shift

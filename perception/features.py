@@ -30,6 +30,11 @@ from perception.visibility import FACE_OUT_OF_VIEW, FACE_VISIBLE
 log = logging.getLogger(__name__)
 
 FEATURE_KINDS = ("auto", "surf", "sift", "orb", "klt")
+#: Pyramidal Lucas-Kanade for points followed from one image into another: 15 px windows,
+#: two pyramid levels (KLT points, ``perception.anchors``)
+LK_PARAMS = dict(winSize=(15, 15), maxLevel=2, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
+#: a followed point is kept when following it back lands this close to where it started, pixels
+FB_MAX_PX = 1.0
 
 
 def surf_available() -> bool:
@@ -302,7 +307,7 @@ class KLTCorrespondences:
     it costs about as much as the frame's own optical flow.
     """
 
-    def __init__(self, max_features: int, fb_max_px: float = 1.0, max_references: int = 4,
+    def __init__(self, max_features: int, fb_max_px: float = FB_MAX_PX, max_references: int = 4,
                  revive_per_frame: int = 100, revive_every: int = 3):
         self.max_features = int(max_features)
         self.fb_max_px = fb_max_px
@@ -317,8 +322,6 @@ class KLTCorrespondences:
         self._next_ref = 0
         self._grey = None
         self._target = 0
-        self._lk = dict(winSize=(15, 15), maxLevel=2,
-                        criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 20, 0.03))
 
     @property
     def n_model(self) -> int:
@@ -361,15 +364,15 @@ class KLTCorrespondences:
         both pyramids afresh on every call)."""
         h, w = now.shape
         ends = np.concatenate([p0, guess])
-        pad = self._lk["winSize"][0] * 2 ** self._lk["maxLevel"]
+        pad = LK_PARAMS["winSize"][0] * 2 ** LK_PARAMS["maxLevel"]
         x0, y0 = (max(0, int(v) - pad) for v in np.floor(ends.min(axis=0)))
         x1, y1 = (int(v) + pad for v in np.ceil(ends.max(axis=0)))
         x1, y1 = min(w, max(x1, x0 + 1)), min(h, max(y1, y0 + 1))
         a, b, shift = before[y0:y1, x0:x1], now[y0:y1, x0:x1], np.float32([x0, y0])
         q0 = (p0 - shift).reshape(-1, 1, 2)
         p1, st, _ = cv2.calcOpticalFlowPyrLK(a, b, q0, (guess - shift).reshape(-1, 1, 2),
-                                             flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk)
-        pb, stb, _ = cv2.calcOpticalFlowPyrLK(b, a, p1, q0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._lk)
+                                             flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **LK_PARAMS)
+        pb, stb, _ = cv2.calcOpticalFlowPyrLK(b, a, p1, q0.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **LK_PARAMS)
         fb = np.linalg.norm((pb - q0).reshape(-1, 2), axis=1)
         return p1.reshape(-1, 2) + shift, (st.ravel() == 1) & (stb.ravel() == 1) & (fb < self.fb_max_px)
 

@@ -461,14 +461,15 @@ class MeshTracker:
         V = res.vertices
         self._V, self._V_prev = V, V.copy()
 
+        feature_mask = self._feature_mask(obs.mask)
         if cfg.use_correspondence:
             self._corr = make_correspondences(cfg.features, cfg.max_features, cfg.match_gate_px,
                                               cfg.match_keep_fraction, cfg.match_previous_frame)
-            self._corr.initialise(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
+            self._corr.initialise(obs.grey, feature_mask, V, mesh.faces, obs.K)
             if isinstance(self._corr, DescriptorCorrespondences) and self._corr.n_model < cfg.min_descriptor_features:
                 log.info("%d descriptor features on the object: KLT points track it as well", self._corr.n_model)
                 self._corr = CombinedCorrespondences(self._corr, KLTCorrespondences(cfg.max_features))
-                self._corr.points.initialise(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
+                self._corr.points.initialise(obs.grey, feature_mask, V, mesh.faces, obs.K)
         self.last_observation = obs
         self._memory.push(self._memory.small(obs.grey))
         visible = self._states(V, frame) == VISIBLE
@@ -478,7 +479,7 @@ class MeshTracker:
             if cfg.use_correspondence and cfg.anchor_points > 0 and self._appearance.textured else None
         self._colour = ColourModel(frame.rgb, obs.mask)
         self._registration = GlobalRegistration(resolve_kind("auto"), rng=self._rng)
-        self._registration.build(obs.grey, self._feature_mask(obs.mask), V, mesh.faces, obs.K)
+        self._registration.build(obs.grey, feature_mask, V, mesh.faces, obs.K)
         self._good_V = V
         self._rest_lengths = np.linalg.norm(V[self._edges[:, 0]] - V[self._edges[:, 1]], axis=1)
         self._stretch = StretchTerm(self._edges, self._rest_lengths, n_vertices=len(V))
@@ -862,11 +863,12 @@ class MeshTracker:
         observed = (state == VISIBLE) | (state == NO_DEPTH)
         obs = observe(frame, mask, cfg.depth_window_px, grey=grey, unsearched=segment.unsearched)
         corr = None
+        feature_mask = self._feature_mask(mask)
         if prepared is not None:
-            fid, bary, xy = self._corr.match(obs.grey, self._feature_mask(mask), V_pred, faces, K, prepared.result(),
+            fid, bary, xy = self._corr.match(obs.grey, feature_mask, V_pred, faces, K, prepared.result(),
                                              face_state=face_states(state, faces))
             if self._anchors is not None:
-                found = self._anchors.match(obs.grey, self._feature_mask(mask), V_pred, K)
+                found = self._anchors.match(obs.grey, feature_mask, V_pred, K)
                 fid, bary, xy = (np.concatenate(parts) for parts in zip((fid, bary, xy), found))
             pts, has = obs.points_at(xy)
             self.last_feature_xy = xy[has]
@@ -887,7 +889,7 @@ class MeshTracker:
             iterations += res.iterations
         V = self._tethered(V, frame)
         if self._corr is not None:
-            self._corr.update(obs.grey, self._feature_mask(mask), V, faces, K)
+            self._corr.update(obs.grey, feature_mask, V, faces, K)
         self._V_prev, self._V = self._V, V
         self.last_observation = obs
         if corr is not None:

@@ -221,14 +221,15 @@ def laundry_spec(seed: int, camera: CameraInfo | None = None, state: str | None 
     if not states or len(set(states)) != len(states) or any(s not in INITIAL_STATES for s in states):
         raise ValueError(f"states: expected some of {', '.join(INITIAL_STATES)}, each once, got {states!r}")
     camera = camera if camera is not None else kinect_camera(640, 480)
-    scene_seq, _ = np.random.SeedSequence(seed).spawn(2)
+    # the third stream redraws a state outside ``states``; the first two are as they always were
+    scene_seq, _, redraw_seq = np.random.SeedSequence(seed).spawn(3)
     rng = np.random.default_rng(scene_seq)
 
     drawn_kind = CLOTH_KINDS[int(rng.integers(0, len(CLOTH_KINDS)))]
     drawn_state = INITIAL_STATES[int(rng.choice(len(INITIAL_STATES), p=STATE_PROBABILITIES))]
     if drawn_state not in states:
         p = np.array([STATE_PROBABILITIES[INITIAL_STATES.index(s)] for s in states])
-        redraw = np.random.default_rng(np.random.SeedSequence(seed).spawn(3)[2])
+        redraw = np.random.default_rng(redraw_seq)
         drawn_state = states[int(redraw.choice(len(states), p=p / p.sum()))]
     kind = cloth_kind or drawn_kind
     state = state or drawn_state
