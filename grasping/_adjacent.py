@@ -168,21 +168,25 @@ def _seen_around(estimate: MeshEstimate, model: _CanonicalModel, vid: np.ndarray
 
 
 def _at_measured_tips(estimate: MeshEstimate, vid: np.ndarray, positions: np.ndarray, inward: np.ndarray,
-                      near: np.ndarray, seen: np.ndarray, config: GraspPlannerConfig, frame: RGBDFrame) -> np.ndarray:
-    """(K, 3) corner grasp positions moved to the tip of the measured surface where the frame
-    shows one within ``config.tip_search_radius_m`` (``grasping._tip.measured_tip``, seeded
-    by the seen material around each corner), ``config.pinch_inset_m`` inside it as every
-    corner grasp; unchanged elsewhere."""
+                      near: np.ndarray, seen: np.ndarray, config: GraspPlannerConfig,
+                      frame: RGBDFrame) -> tuple[np.ndarray, np.ndarray]:
+    """(placed (K, 3), offsets (K,)): the corner grasp positions moved to the tip of the
+    measured surface where the frame shows one within ``config.tip_search_radius_m``
+    (``grasping._tip.measured_tip``, seeded by the seen material around each corner),
+    ``config.pinch_inset_m`` inside it as every corner grasp, and unchanged elsewhere; and
+    the distance in metres from the estimate's corner vertex to that tip, NaN where there
+    was none."""
     placed = positions.copy()
+    offsets = np.full(len(vid), np.nan)
     for k, corner in enumerate(vid):
         seeds = estimate.vertices[near[k] & seen]
         tip = measured_tip(frame, estimate.vertices[corner], -inward[k], seeds, config.tip_search_radius_m,
                            config.tip_max_step_m)
         if tip is not None:
-            log.debug("adjacent corner %d placed at the measured tip, %.3f m from the estimate's", corner,
-                      float(np.linalg.norm(tip - estimate.vertices[corner])))
+            offsets[k] = float(np.linalg.norm(tip - estimate.vertices[corner]))
+            log.debug("adjacent corner %d placed at the measured tip, %.3f m from the estimate's", corner, offsets[k])
             placed[k] = tip + config.pinch_inset_m * inward[k]
-    return placed
+    return placed, offsets
 
 
 def _none(held_vertex: int, held_outline_vertex: int, reason: str) -> AdjacentCornersResult:
@@ -191,7 +195,8 @@ def _none(held_vertex: int, held_outline_vertex: int, reason: str) -> AdjacentCo
 
 
 def _adjacent_on_model(estimate: MeshEstimate, model: _CanonicalModel, config: GraspPlannerConfig,
-                       frame: RGBDFrame | None, held_vertex, max_candidates) -> AdjacentCornersResult:
+                       frame: RGBDFrame | None, held_vertex, max_candidates,
+                       even_if_lost: bool = False) -> AdjacentCornersResult:
     held_vertex = _check_held_vertex(held_vertex, len(estimate.canonical))
     if isinstance(max_candidates, (bool, np.bool_)) or not isinstance(max_candidates, (int, np.integer)) \
             or max_candidates < 1:
@@ -201,9 +206,9 @@ def _adjacent_on_model(estimate: MeshEstimate, model: _CanonicalModel, config: G
         return _none(held_vertex, -1, "estimate has no boundary vertices")
     row = _held_row(outline, model, held_vertex)
     held_outline_vertex = int(outline.vertex_ids[row])
-    if estimate.lost:
+    if estimate.lost and not even_if_lost:
         return _none(held_vertex, held_outline_vertex, f"estimate lost (seq {estimate.seq})")
-    if estimate.confidence < config.min_confidence:
+    if estimate.confidence < config.min_confidence and not even_if_lost:
         return _none(held_vertex, held_outline_vertex, f"estimate confidence {estimate.confidence:.3g} below "
                                                        f"min_confidence {config.min_confidence:.3g}")
     neighbours, reason = _neighbour_rows(outline, row)
@@ -228,8 +233,10 @@ def _adjacent_on_model(estimate: MeshEstimate, model: _CanonicalModel, config: G
     near, seen = _seen_around(estimate, model, vid, config, frame)
     visibility_known = seen is not None
     visible = np.array([seen[around].mean() for around in near]) if visibility_known else np.ones(len(vid))
+    tip_offsets = np.full(len(vid), np.nan)
     if frame is not None and config.tip_search_radius_m > 0:
-        positions = _at_measured_tips(estimate, vid, positions, found.inward[keep], near, seen, config, frame)
+        positions, tip_offsets = _at_measured_tips(estimate, vid, positions, found.inward[keep], near, seen, config,
+                                                   frame)
     reachable = _inside_workspace(positions, config)
     clearance = _clearance_term(_clearance(estimate, model.graph, vid, config), config)
     score = config.weight_clearance * clearance + config.weight_confidence * float(estimate.confidence)
@@ -244,7 +251,8 @@ def _adjacent_on_model(estimate: MeshEstimate, model: _CanonicalModel, config: G
                          "corner", config)
     candidates = tuple(
         AdjacentCorner(plan=plan, side=int(sides[k]), material_distance_m=float(distance_m[k]),
-                       visible=float(visible[k]), reachable=bool(reachable[k]))
+                       visible=float(visible[k]), reachable=bool(reachable[k]),
+                       tip_offset_m=None if np.isnan(tip_offsets[k]) else float(tip_offsets[k]))
         for plan, k in zip(plans, order)
     )
     log.debug("held vertex %d (outline vertex %d): adjacent corners %s", held_vertex, held_outline_vertex,
@@ -254,7 +262,8 @@ def _adjacent_on_model(estimate: MeshEstimate, model: _CanonicalModel, config: G
 
 
 def adjacent_corners(estimate: MeshEstimate, held_vertex: int, config: GraspPlannerConfig | None = None,
-                     frame: RGBDFrame | None = None, max_candidates: int = 2) -> AdjacentCornersResult:
+                     frame: RGBDFrame | None = None, max_candidates: int = 2,
+                     even_if_lost: bool = False) -> AdjacentCornersResult:
     """The outline corners next to a held material point, placed on the current estimate.
 
     The held point is ``held_vertex``'s row of the canonical outline, or, for a vertex off
@@ -284,6 +293,9 @@ def adjacent_corners(estimate: MeshEstimate, held_vertex: int, config: GraspPlan
     frame : RGBDFrame the estimate came from, or None; its ``depth_m`` (H, W) float32
         metres and ``camera`` give the depth-visibility test
     max_candidates : int >= 1, most candidates returned (there are at most two)
+    even_if_lost : bool, also plan on an estimate flagged lost or below ``min_confidence``:
+        for a caller that checks each corner against the measured surface itself
+        (``tip_offset_m``), since the estimate may be wrong elsewhere and right there
 
     Returns
     -------
@@ -292,9 +304,11 @@ def adjacent_corners(estimate: MeshEstimate, held_vertex: int, config: GraspPlan
     metres, unit ``approach``, ``quat_xyzw`` of ``R_cam_gripper`` as for every plan,
     ``score`` in [0, 1]), with ``side`` (+1 forward along the outline's order, -1 backward),
     ``material_distance_m`` (arc length of the canonical outline from the held point,
-    metres), ``visible`` in [0, 1] (``_seen_around``: 1 when no flags and no frame) and
-    ``reachable``. Empty with a one-line ``reason`` when the mesh has no boundary, the
-    estimate is lost or below ``min_confidence``, or the held point's outline loop has no
+    metres), ``visible`` in [0, 1] (``_seen_around``: 1 when no flags and no frame),
+    ``reachable`` and ``tip_offset_m`` (metres from the estimate's corner vertex to the
+    measured tip the position was moved to; None when it was not moved). Empty with a
+    one-line ``reason`` when the mesh has no boundary, the estimate is lost or below
+    ``min_confidence`` (unless ``even_if_lost``), or the held point's outline loop has no
     other corner.
 
     Raises
@@ -307,4 +321,4 @@ def adjacent_corners(estimate: MeshEstimate, held_vertex: int, config: GraspPlan
     config = GraspPlannerConfig() if config is None else config
     _check_inputs(estimate, frame)
     return _adjacent_on_model(estimate, _build_model(estimate, config, with_outline=True), config, frame, held_vertex,
-                              max_candidates)
+                              max_candidates, even_if_lost)

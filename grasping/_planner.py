@@ -635,7 +635,7 @@ class GraspPlanner:
         return _plan(estimate, self._model_for(estimate), self.config, frame)
 
     def adjacent_corners(self, estimate: MeshEstimate, held_vertex: int, frame: RGBDFrame | None = None,
-                         max_candidates: int = 2):
+                         max_candidates: int = 2, even_if_lost: bool = False):
         """The corners adjacent to a held point, as ``grasping.adjacent_corners`` with this
         planner's config and its cached analysis of the canonical mesh.
 
@@ -645,4 +645,5 @@ class GraspPlanner:
         from grasping._adjacent import _adjacent_on_model
 
         _check_inputs(estimate, frame)
-        return _adjacent_on_model(estimate, self._model_for(estimate), self.config, frame, held_vertex, max_candidates)
+        return _adjacent_on_model(estimate, self._model_for(estimate), self.config, frame, held_vertex, max_candidates,
+                                  even_if_lost)

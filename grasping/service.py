@@ -162,7 +162,8 @@ class PlannerCore:
             return estimate
         frame = self.frame_for(estimate)
         t0 = time.perf_counter()
-        result = self._adjacent.adjacent_corners(estimate, request.held_vertex, frame, request.max_candidates)
+        result = self._adjacent.adjacent_corners(estimate, request.held_vertex, frame, request.max_candidates,
+                                                 request.even_if_lost)
         log.info("request %d: %d corner(s) adjacent to vertex %d on estimate %d in %.1f ms%s%s", rid,
                  len(result.candidates), request.held_vertex, estimate.seq, 1000 * (time.perf_counter() - t0),
                  "" if frame is not None else ", no frame", f": {result.reason}" if not result else "")

@@ -20,7 +20,7 @@ import numpy as np
 
 from ipc import wire
 
-SCHEMA_VERSION = 5
+SCHEMA_VERSION = 6
 
 # Wire types shared by several fields.
 _REQUEST_ID = wire.Int(lo=0)  # echoed in the reply
@@ -427,6 +427,10 @@ class AdjacentCorner:
         point and the corner on the canonical (rest) mesh: the edge the two grasps stretch
     visible : float in [0, 1], the part of the material around the corner that was seen
     reachable : True when the grasp lies inside the planner's workspace
+    tip_offset_m : float >= 0, metres from the estimate's corner vertex to the tip of the
+        measured surface the grasp was moved to, or None when it was not moved (no tip
+        search, no frame, or no tip within the search): how far the frame says the
+        estimate's corner is from where the cloth ends
     """
 
     plan: GraspPlan = wire.field(wire.Nested(GraspPlan))
@@ -434,6 +438,7 @@ class AdjacentCorner:
     material_distance_m: float = wire.field(wire.Float(lo=0.0))
     visible: float = wire.field(wire.Float(lo=0.0))
     reachable: bool = wire.field(wire.Bool())
+    tip_offset_m: float | None = wire.field(wire.Optional(wire.Float(lo=0.0)), default=None)
 
     SIDES = (1, -1)
 
@@ -452,6 +457,8 @@ class AdjacentCorner:
         if not isinstance(self.reachable, (bool, np.bool_)):
             raise ValueError(f"AdjacentCorner.reachable: expected a bool, got {self.reachable!r}")
         object.__setattr__(self, "reachable", bool(self.reachable))
+        object.__setattr__(self, "tip_offset_m",
+                           _check_number("AdjacentCorner.tip_offset_m", self.tip_offset_m, optional=True))
 
 
 @dataclass(frozen=True)
@@ -465,12 +472,16 @@ class AdjacentCornersRequest:
         most two: one on each side of the held point)
     estimate : MeshEstimate to plan on, or None to plan on the newest estimate the
         planner has received from the perception service
+    even_if_lost : bool, plan also on an estimate flagged lost or below the planner's
+        minimum confidence (default False: no candidates then), for a controller that
+        checks each corner against the frame itself (``AdjacentCorner.tip_offset_m``)
     """
 
     request_id: int = wire.field(_REQUEST_ID, default=0)
     held_vertex: int = wire.field(wire.Int(lo=0), kw_only=True)  # required: no vertex is a safe default
     max_candidates: int = wire.field(wire.Int(), default=2)
     estimate: MeshEstimate | None = wire.field(wire.Optional(wire.Nested(MeshEstimate)), default=None)
+    even_if_lost: bool = wire.field(wire.Bool(), default=False)
 
     def __post_init__(self):
         object.__setattr__(self, "request_id", _check_request_id("AdjacentCornersRequest", self.request_id))
@@ -479,6 +490,9 @@ class AdjacentCornersRequest:
         if self.estimate is not None and not isinstance(self.estimate, MeshEstimate):
             raise ValueError(f"AdjacentCornersRequest.estimate: expected MeshEstimate or None, "
                              f"got {type(self.estimate).__name__}")
+        if not isinstance(self.even_if_lost, (bool, np.bool_)):
+            raise ValueError(f"AdjacentCornersRequest.even_if_lost: expected a bool, got {self.even_if_lost!r}")
+        object.__setattr__(self, "even_if_lost", bool(self.even_if_lost))
 
 
 @dataclass(frozen=True)

@@ -109,16 +109,17 @@ def summarise(records: list[dict]) -> dict:
 def _unfold_summary(records: list[dict], median) -> dict:
     """Success, first grasps at a corner, tracking error during the lift and at the second
     plan (medians over trials of their mean and p95, mm) and trial time of unfold trials;
-    of the trials that declined an unseen corner, how many had a true adjacent corner in
-    the camera's sight all the same (``tracking.true_adjacent_seen``)."""
+    of the trials that declined the corner they would have taken (unseen, or not confirmed
+    by the measured surface), how many had a true adjacent corner in the camera's sight all
+    the same (``tracking.true_adjacent_seen``)."""
     def err(key: str, stat: str):
         errors = [(r.get("tracking") or {}).get(key) for r in records]
         return median(e.get(stat) if e else None for e in errors)
 
-    declined_blind = [r for r in records if "not grasped blind" in (r.get("failure") or "")]
-    in_sight = sum(any(((r.get("tracking") or {}).get("true_adjacent_seen") or {}).values()) for r in declined_blind)
+    declined = [r for r in records if "not grasped" in (r.get("failure") or "")]
+    in_sight = sum(any(((r.get("tracking") or {}).get("true_adjacent_seen") or {}).values()) for r in declined)
     return {"success": _rate(records), "first_grasp_at_corner": _rate(records, "corner_success"),
-            "not_grasped_blind": {"trials": len(declined_blind), "true_adjacent_corner_in_sight": in_sight},
+            "declined": {"trials": len(declined), "true_adjacent_corner_in_sight": in_sight},
             "median_lift_error_mm": {"mean": err("lift_error_mm", "mean"), "p95": err("lift_error_mm", "p95")},
             "median_second_plan_error_mm": {"mean": err("second_plan_error_mm", "mean"),
                                             "p95": err("second_plan_error_mm", "p95")},
@@ -181,17 +182,18 @@ def markdown(rep: dict) -> str:
         lines += ["Second corner chosen by (adjacent: the tracked mesh's outline; lowest: the hanging cloth's "
                   "lowest point; redetect: a tracker started afresh on the hanging cloth). Tracking error: "
                   "material-point error of the estimate, median over trials of the mean / 95th percentile, mm.", "",
-                  "Not grasped blind: trials that declined a corner the estimate said was unseen, and of "
-                  "them how many had a true adjacent corner in the camera's sight (ground truth).", "",
+                  "Declined: trials that grasped nothing rather than a corner the estimate said was unseen or "
+                  "the measured surface did not confirm, and of them how many had a true adjacent corner in the "
+                  "camera's sight (ground truth).", "",
                   "| second corner | success | first grasp at a corner | error during the lift | "
-                  "error at the second plan | not grasped blind (true corner in sight) | frames tracked | trial s |",
+                  "error at the second plan | declined (true corner in sight) | frames tracked | trial s |",
                   "| --- | --- | --- | --- | --- | --- | --- | --- |"]
         for name, u in s["by_regrasp"].items():
             lift, second = u["median_lift_error_mm"], u["median_second_plan_error_mm"]
-            blind = u["not_grasped_blind"]
+            declined = u["declined"]
             lines.append(f"| {name} | {pct(u['success'])} | {pct(u['first_grasp_at_corner'])} | "
                          f"{lift['mean']} / {lift['p95']} | {second['mean']} / {second['p95']} | "
-                         f"{blind['trials']} ({blind['true_adjacent_corner_in_sight']}) | "
+                         f"{declined['trials']} ({declined['true_adjacent_corner_in_sight']}) | "
                          f"{u['median_frames_tracked']} | {u['median_total_s']} |")
         lines.append("")
     if s["failures"]:

@@ -11,10 +11,11 @@ with each frame as the known occluder. The second corner is chosen by
 ``config.regrasp``:
 
 - "adjacent": the planner's ``AdjacentCornersRequest``: the corners next to the held one
-  along the tracked mesh's canonical outline, at their tracked positions; the robot takes
-  a reachable one joined to the held corner by a straight edge and seen by the camera
+  along the tracked mesh's canonical outline, at their tracked positions, asked
+  ``even_if_lost``; the robot takes a reachable one joined to the held corner by a straight
+  edge, seen by the camera and confirmed by the measured surface
   (``sim.laundry.controller.stretchable_corner``), and grasps nothing when the one it would
-  take was not seen (``MIN_CORNER_VISIBLE``);
+  take was not seen (``MIN_CORNER_VISIBLE``) or not confirmed (``surface_confirms``);
 - "lowest": the lowest point of the hanging cloth as the camera sees it (the classic
   regrasp heuristic; ``grasping.lowest_point_grasp``), no tracking needed;
 - "redetect": the perception service is initialised afresh on the hanging cloth and the
@@ -55,6 +56,7 @@ from sim.laundry.controller import (
     default_controller,
     edge_straightness,
     stretchable_corner,
+    surface_confirms,
 )
 from sim.laundry.judge import TOLERANCE_M, judge_unfold, seen_by_camera
 from sim.laundry.pictures import caption, draw_plan, save_png, strip
@@ -143,24 +145,14 @@ def _lift_errors(estimates: dict, truth: dict, faces: np.ndarray, seqs: list[int
     return {"mean": round(summary["mean_mm"], 2), "p95": round(summary["p95_mm"], 2)}
 
 
-def no_adjacent_corner(planned_on: MeshEstimate | None) -> str:
-    """The failure of a trial whose planner found no corner adjacent to the held one, saying
-    whether the estimate it planned on (None: not among the trial's) was flagged lost (the
-    planner does not plan on a lost estimate) or the mesh's outline had no such corner."""
-    if planned_on is None:
-        return "the planner found no adjacent corner"
-    if planned_on.lost:
-        return "the planner found no adjacent corner: the estimate planned on was flagged lost"
-    return "the planner found no adjacent corner on the outline of an estimate not flagged lost"
-
-
 def _second_plan(scene, link, config, tracking: _Tracking, reference, held_vertex: int, first_hand) -> tuple:
     """The second grasp for ``config.regrasp``: (plan or None, the canonical distance between
     the two held points in metres, the mesh vertex the plan grasps, details for the record)."""
     frame = tracking.frames["last"]
     estimate = tracking.estimates[frame.seq]
     if config.regrasp == "adjacent":
-        reply, _ = link.ask(AdjacentCornersRequest(request_id=frame.seq, held_vertex=held_vertex, max_candidates=2),
+        reply, _ = link.ask(AdjacentCornersRequest(request_id=frame.seq, held_vertex=held_vertex, max_candidates=2,
+                                                   even_if_lost=True),
                             frame.seq, lambda: link.frames_pub.publish(frame))
         candidates = reply.candidates
         if scene.arm != "drawn":  # only corners the second arm can take
@@ -168,19 +160,23 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
             if candidates and all(why):
                 return None, None, -1, {"reason": why[0], "n_candidates": len(candidates)}
             candidates = tuple(c for c, w in zip(candidates, why) if not w)
-        best = stretchable_corner(candidates, estimate.canonical, held_vertex)
+        held_cam = transform_points(invert_transform(scene.T_world_cam), first_hand.gripper.position[None])[0]
+        best = stretchable_corner(candidates, estimate.canonical, held_vertex, held_cam)
         if best is None:
-            return None, None, -1, {"reason": no_adjacent_corner(tracking.estimates.get(reply.estimate_seq))}
+            return None, None, -1, {"reason": "the planner found no adjacent corner on the estimate's outline"}
+        seen = {"visible": round(best.visible, 3), "n_candidates": len(reply.candidates),
+                "tip_offset_m": None if best.tip_offset_m is None else round(best.tip_offset_m, 4)}
         if best.visible < MIN_CORNER_VISIBLE:  # nothing seen confirms the estimate's corner
             return None, None, -1, {"reason": f"adjacent corner not seen (visibility {best.visible:.2f} < "
-                                              f"{MIN_CORNER_VISIBLE:g}): not grasped blind",
-                                    "visible": round(best.visible, 3), "n_candidates": len(reply.candidates)}
+                                              f"{MIN_CORNER_VISIBLE:g}): not grasped blind", **seen}
+        unconfirmed = surface_confirms(best, held_cam)
+        if unconfirmed:
+            return None, None, -1, {"reason": f"adjacent corner not confirmed by the measured surface ({unconfirmed}): "
+                                              "not grasped", **seen}
         distance = float(np.linalg.norm(estimate.canonical[best.plan.vertex_id] - estimate.canonical[held_vertex]))
         return best.plan, distance, int(best.plan.vertex_id), {
-            "side": best.side, "visible": round(best.visible, 3),
-            "material_distance_m": round(best.material_distance_m, 4),
-            "straightness": round(edge_straightness(best, estimate.canonical, held_vertex), 3),
-            "n_candidates": len(reply.candidates)}
+            "side": best.side, "material_distance_m": round(best.material_distance_m, 4),
+            "straightness": round(edge_straightness(best, estimate.canonical, held_vertex), 3), **seen}
     if config.regrasp == "lowest":
         points = seen_cloth_points(frame, reference)
         if len(points) < 3:
@@ -486,7 +482,8 @@ def _tracking_record(tracking: _Tracking, scene, lift_seqs: list[int], plan_seq:
         return counts
     return {"lift_error_mm": _lift_errors(estimates, tracking.truth, scene.faces, lift_seqs),
             "second_plan_error_mm": _lift_errors(estimates, tracking.truth, scene.faces, [plan_seq]),
-            "confidence_at_second_plan": round(float(estimates[plan_seq].confidence), 3), **counts}
+            "confidence_at_second_plan": round(float(estimates[plan_seq].confidence), 3),
+            "lost_at_second_plan": bool(estimates[plan_seq].lost), **counts}
 
 
 def _pictures(scene, tracking: _Tracking, record: dict, config) -> str:

@@ -99,19 +99,57 @@ def edge_straightness(corner: AdjacentCorner, canonical: np.ndarray, held_vertex
 MIN_CORNER_VISIBLE = 0.25
 
 
-def stretchable_corner(candidates, canonical: np.ndarray, held_vertex: int) -> AdjacentCorner | None:
+#: How far from the estimate's corner the measured surface may end for the frame to confirm
+#: the corner (``AdjacentCorner.tip_offset_m``, the planner searching 10 cm round it): twice
+#: the 3 cm by which a grasp may miss a corner. Measured on the last hanging frame of 40
+#: recorded lifts (unfold seeds 941-1019, the unfold trials' tracker, a development script
+#: planning on each estimate whether flagged lost or not): of the 21 corners whose tip lay
+#: within 6 cm, and not beyond ``MAX_REACH_OVER_MATERIAL``, 17 were planned within 3 cm of a
+#: true corner sharing an edge with the held one; of the 19 others, 3 (tips 8.8 and 9.8 cm
+#: away, and one without a tip). Any limit from 5 to 7 cm gave the same split.
+MAX_TIP_OFFSET_M = 0.06
+#: A cloth does not stretch: the corner next to the held one hangs no farther from the
+#: gripper than the edge between them is long (``AdjacentCorner.material_distance_m``,
+#: measured between outline vertices, so up to a grid spacing short at each end), with 20 %
+#: to spare for that and for the cloth's own give.
+MAX_REACH_OVER_MATERIAL = 1.2
+
+
+def surface_confirms(corner: AdjacentCorner, held_point_cam: np.ndarray) -> str:
+    """Why the frame does not confirm ``corner`` as the planner placed it, one line; "" when
+    it does: the measured surface ends within ``MAX_TIP_OFFSET_M`` of the estimate's corner
+    (``tip_offset_m``), and the grasp lies within ``MAX_REACH_OVER_MATERIAL`` times the
+    edge's rest length of the held point ``held_point_cam`` (3,) metres, in the plan's
+    camera frame. Asked of every corner, since a tracked estimate can be wrong at the
+    corner while confident overall, and right there while flagged lost."""
+    if corner.tip_offset_m is None:
+        return "no tip of the measured surface within the search"
+    if corner.tip_offset_m > MAX_TIP_OFFSET_M:
+        return f"the measured tip lies {100 * corner.tip_offset_m:.1f} cm from the estimate's corner"
+    reach = float(np.linalg.norm(np.asarray(corner.plan.position) - np.asarray(held_point_cam, np.float64)))
+    if reach > MAX_REACH_OVER_MATERIAL * corner.material_distance_m:
+        return (f"{100 * reach:.0f} cm from the held corner, along an edge {100 * corner.material_distance_m:.0f} cm "
+                f"long")
+    return ""
+
+
+def stretchable_corner(candidates, canonical: np.ndarray, held_vertex: int,
+                       held_point_cam: np.ndarray | None = None) -> AdjacentCorner | None:
     """The adjacent corner to grasp second, of the planner's ``AdjacentCorner`` candidates
     (best first): a reachable one first, among those one joined to the held point by a
     straight edge (``MIN_EDGE_STRAIGHTNESS``), which pulling the two corners apart stretches
-    (a T-shirt's hem, not the side seam that bends under the sleeve), and among those one the
-    camera saw (``MIN_CORNER_VISIBLE``); the planner's order decides among equals. None when
+    (a T-shirt's hem, not the side seam that bends under the sleeve), among those one the
+    camera saw (``MIN_CORNER_VISIBLE``) and, given where the held point is
+    (``held_point_cam`` (3,), metres, the plans' camera frame), among those one the frame
+    confirms (``surface_confirms``); the planner's order decides among equals. None when
     there are no candidates. The caller still checks what it got: the best may be unseen.
     """
     if not candidates:
         return None
     return min(candidates, key=lambda c: (not c.reachable,
                                           edge_straightness(c, canonical, held_vertex) < MIN_EDGE_STRAIGHTNESS,
-                                          c.visible < MIN_CORNER_VISIBLE))
+                                          c.visible < MIN_CORNER_VISIBLE,
+                                          held_point_cam is not None and bool(surface_confirms(c, held_point_cam))))
 
 
 #: Corner plans scoring within this of the planner's best are equally good grasps (a cloth

@@ -304,6 +304,13 @@ def test_lost_or_unconfident_estimates_give_no_candidates():
     assert not lost and lost.reason == "estimate lost (seq 4)" and lost.held_outline_vertex == held
     shaky = adjacent_corners(towel_estimate(confidence=0.3), held, GraspPlannerConfig(min_confidence=0.5))
     assert not shaky and shaky.reason == "estimate confidence 0.3 below min_confidence 0.5"
+    # asked even if lost: the same corners as on the estimate not flagged
+    kept = adjacent_corners(towel_estimate(seq=4), held)
+    for estimate, config in ((towel_estimate(lost=True, seq=4), None),
+                             (towel_estimate(confidence=0.3), GraspPlannerConfig(min_confidence=0.5))):
+        asked = adjacent_corners(estimate, held, config, even_if_lost=True)
+        assert [c.plan.vertex_id for c in asked.candidates] == [c.plan.vertex_id for c in kept.candidates]
+        assert len(asked.candidates) == 2 and asked.reason == ""
 
 
 # --------------------------------------------------------------------------- scores
@@ -425,5 +432,9 @@ def test_planner_core_answers_whatever_kinds_it_serves():
     assert {c.plan.vertex_id for c in reply.candidates} == {corners[1], corners[3]}
     own = core.handle(AdjacentCornersRequest(held_vertex=corners[2], max_candidates=1, estimate=towel_estimate(seq=11)))
     assert own.estimate_seq == 11 and len(own.candidates) == 1
+    core.on_estimate(towel_estimate(seq=12, lost=True))
+    assert core.handle(AdjacentCornersRequest(held_vertex=0)).candidates == ()
+    anyway = core.handle(AdjacentCornersRequest(held_vertex=0, even_if_lost=True))
+    assert anyway.estimate_seq == 12 and {c.plan.vertex_id for c in anyway.candidates} == {corners[1], corners[3]}
     with pytest.raises(ValueError, match=r"held_vertex in \[0, 369\)"):
         core.handle(AdjacentCornersRequest(held_vertex=400))

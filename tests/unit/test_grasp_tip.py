@@ -100,5 +100,7 @@ def test_adjacent_corners_go_to_the_measured_tips_only_when_asked():
     assert np.linalg.norm(before.plan.position - true_corner) > 0.035
     assert np.linalg.norm(right.plan.position - true_corner) < 0.012
     assert right.visible == before.visible and right.plan.vertex_id == before.plan.vertex_id
+    # how far the frame says the estimate's corner is from where the towel ends: the 4 cm shift
+    assert before.tip_offset_m is None and right.tip_offset_m == pytest.approx(0.04, abs=0.01)
     with pytest.raises(ValueError, match="tip_search_radius_m >= 0"):
         GraspPlannerConfig(tip_search_radius_m=-0.1)

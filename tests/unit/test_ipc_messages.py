@@ -74,6 +74,8 @@ def test_adjacent_corner_checks_its_fields():
         ({"visible": 1.5}, r"^AdjacentCorner\.visible: expected a number in \[0, 1\], got 1\.5$"),
         ({"visible": math.nan}, r"AdjacentCorner\.visible: expected a number in \[0, 1\], got nan"),
         ({"reachable": 1}, r"^AdjacentCorner\.reachable: expected a bool, got 1$"),
+        ({"tip_offset_m": -0.01}, r"^AdjacentCorner\.tip_offset_m: expected a number >= 0 or None, got -0\.01$"),
+        ({"tip_offset_m": math.nan}, r"AdjacentCorner\.tip_offset_m: expected a number >= 0 or None, got nan"),
     ]:
         with pytest.raises(ValueError, match=match):
             m.AdjacentCorner(**{**ok, **change})
@@ -81,7 +83,7 @@ def test_adjacent_corner_checks_its_fields():
 
 def test_adjacent_corners_request_needs_a_held_vertex():
     r = m.AdjacentCornersRequest(held_vertex=np.int32(7))
-    assert (r.request_id, r.held_vertex, r.max_candidates, r.estimate) == (0, 7, 2, None)
+    assert (r.request_id, r.held_vertex, r.max_candidates, r.estimate, r.even_if_lost) == (0, 7, 2, None, False)
     assert type(r.held_vertex) is int
     with pytest.raises(TypeError, match="held_vertex"):
         m.AdjacentCornersRequest()
@@ -92,6 +94,7 @@ def test_adjacent_corners_request_needs_a_held_vertex():
         ({"held_vertex": 1, "max_candidates": 101}, r"AdjacentCornersRequest\.max_candidates"),
         ({"held_vertex": 1, "request_id": -2}, r"AdjacentCornersRequest\.request_id"),
         ({"held_vertex": 1, "estimate": "mesh"}, r"^AdjacentCornersRequest\.estimate: expected MeshEstimate or None, got str$"),
+        ({"held_vertex": 1, "even_if_lost": 1}, r"^AdjacentCornersRequest\.even_if_lost: expected a bool, got 1$"),
     ]:
         with pytest.raises(ValueError, match=match):
             m.AdjacentCornersRequest(**kwargs)

@@ -8,17 +8,19 @@ from scipy.spatial.transform import Rotation
 
 from grasping import GraspPlanner, adjacent_corners
 from ipc.messages import GraspPlan, MeshEstimate
-from launch_scripts.trial_runner.unfold import no_adjacent_corner
 from perception.geometry import look_at, project, transform_points
 from sim.grasp_execution import move_grippers
 from sim.laundry import LaundryScene, laundry_spec
 from sim.laundry.controller import (
+    MAX_REACH_OVER_MATERIAL,
+    MAX_TIP_OFFSET_M,
     MIN_CORNER_VISIBLE,
     MIN_EDGE_STRAIGHTNESS,
     NEAR_BEST_SCORE,
     corner_to_lift_first,
     edge_straightness,
     stretchable_corner,
+    surface_confirms,
 )
 from sim.laundry.judge import MIN_STRETCH, TOLERANCE_M, judge_unfold, seen_by_camera
 from sim.laundry.truth import rectangle_corners_uv, share_an_edge
@@ -97,32 +99,75 @@ def test_a_reachable_corner_comes_before_a_straight_edge():
     assert stretchable_corner((out_of_reach, second), est.canonical, held) is second
 
 
-def test_a_corner_the_camera_did_not_see_is_never_grasped_blind():
+def _second_plan_on(est, held, candidates):
+    """``_second_plan`` of an "adjacent" trial whose planner answers ``candidates`` on
+    ``est``, the first gripper at the held vertex, the camera at the world's origin."""
     from types import SimpleNamespace
 
     from launch_scripts.trial_runner.unfold import _second_plan
 
+    asked = []
+
+    def ask(request, seq, republish):
+        asked.append(request)
+        return SimpleNamespace(candidates=candidates, estimate_seq=7), 1.0
+
+    tracking = SimpleNamespace(frames={"last": SimpleNamespace(seq=7)}, estimates={7: est})
+    hand = SimpleNamespace(gripper=SimpleNamespace(position=est.vertices[held]))
+    result = _second_plan(SimpleNamespace(arm="drawn", T_world_cam=np.eye(4)), SimpleNamespace(ask=ask),
+                          SimpleNamespace(regrasp="adjacent"), tracking, None, held, hand)
+    assert asked[0].even_if_lost  # the robot judges each corner itself
+    return result
+
+
+def confirmed(corner, offset_m=0.01):
+    """``corner`` with its grasp at the measured tip, ``offset_m`` from the estimate's corner."""
+    return dataclasses.replace(corner, tip_offset_m=offset_m)
+
+
+def test_a_corner_the_camera_did_not_see_is_never_grasped_blind():
     est = towel_estimate()
     held = int(GraspPlanner().corners(est)[0])
-    first, second = adjacent_corners(est, held).candidates
+    first, second = (confirmed(c) for c in adjacent_corners(est, held).candidates)
     assert first.visible == 1.0 and second.visible == 1.0  # no flags and no frame: taken as seen
     unseen = dataclasses.replace(first, visible=0.0)
     assert stretchable_corner((unseen, second), est.canonical, held) is second  # the seen one, though ranked second
 
-    def second_plan(candidates):
-        link = SimpleNamespace(ask=lambda request, seq, republish: (SimpleNamespace(candidates=candidates,
-                                                                                    estimate_seq=7), 1.0))
-        tracking = SimpleNamespace(frames={"last": SimpleNamespace(seq=7)}, estimates={7: est})
-        return _second_plan(SimpleNamespace(arm="drawn"), link, SimpleNamespace(regrasp="adjacent"), tracking, None, held,
-                            None)
-
-    plan, _, vertex, details = second_plan((unseen, second))
+    plan, _, vertex, details = _second_plan_on(est, held, (unseen, second))
     assert plan is second.plan and vertex == second.plan.vertex_id and details["visible"] == 1.0
     barely = dataclasses.replace(second, visible=MIN_CORNER_VISIBLE / 2)
-    plan, distance, vertex, details = second_plan((unseen, barely))
+    plan, distance, vertex, details = _second_plan_on(est, held, (unseen, barely))
     assert plan is None and distance is None and vertex == -1
     # neither seen: the planner's first, as ever, and nothing grasped
     assert details["reason"] == f"adjacent corner not seen (visibility 0.00 < {MIN_CORNER_VISIBLE:g}): not grasped blind"
+
+
+def test_a_corner_is_grasped_only_where_the_measured_surface_confirms_it():
+    est = towel_estimate()
+    held = int(GraspPlanner().corners(est)[0])
+    held_at = est.vertices[held]
+    first, second = adjacent_corners(est, held).candidates
+    assert first.tip_offset_m is None  # no frame: no tip searched for
+    assert surface_confirms(first, held_at) == "no tip of the measured surface within the search"
+    assert surface_confirms(confirmed(first, MAX_TIP_OFFSET_M), held_at) == ""
+    far_tip = confirmed(first, MAX_TIP_OFFSET_M + 0.01)
+    assert surface_confirms(far_tip, held_at) == \
+        f"the measured tip lies {100 * (MAX_TIP_OFFSET_M + 0.01):.1f} cm from the estimate's corner"
+    # a corner farther from the gripper than the cloth between them allows
+    length = first.material_distance_m
+    assert float(np.linalg.norm(first.plan.position - held_at)) <= MAX_REACH_OVER_MATERIAL * length
+    stretched = dataclasses.replace(confirmed(first), material_distance_m=0.5 * length)
+    assert "from the held corner, along an edge" in surface_confirms(stretched, held_at)
+
+    # the confirmed one is preferred, though ranked second; neither confirmed: nothing grasped
+    assert stretchable_corner((first, confirmed(second)), est.canonical, held, held_at).plan is second.plan
+    assert stretchable_corner((first, confirmed(second)), est.canonical, held).plan is first.plan  # held point unknown
+    plan, _, vertex, details = _second_plan_on(est, held, (first, confirmed(second, 0.02)))
+    assert plan is second.plan and details["tip_offset_m"] == 0.02
+    plan, distance, vertex, details = _second_plan_on(est, held, (far_tip, second))
+    assert plan is None and distance is None and vertex == -1
+    assert details["reason"] == (f"adjacent corner not confirmed by the measured surface (the measured tip lies "
+                                 f"{100 * (MAX_TIP_OFFSET_M + 0.01):.1f} cm from the estimate's corner): not grasped")
 
 
 def test_lift_target_leaves_the_cloth_hanging_clear():
@@ -253,16 +298,19 @@ def test_the_camera_sees_a_true_corner_in_view_not_one_under_a_hand_or_behind_th
         assert not seen[0] and seen[1:].all()
 
 
-def test_the_report_counts_corners_declined_blind_that_were_in_sight():
+def test_the_report_counts_corners_declined_that_were_in_sight():
     from launch_scripts.trial_runner.report import markdown, report
 
     blind = "adjacent corner not seen (visibility 0.00 < 0.25): not grasped blind"
-    records = [{**_unfold_record(seed, "adjacent", False, 50.0), "failure": blind} for seed in (0, 2, 4)]
+    unconfirmed = ("adjacent corner not confirmed by the measured surface (no tip of the measured surface within the "
+                   "search): not grasped")
+    records = [{**_unfold_record(seed, "adjacent", False, 50.0), "failure": reason}
+               for seed, reason in ((0, blind), (2, unconfirmed), (4, blind))]
     records[0]["tracking"]["true_adjacent_seen"] = {"top_right": False, "bottom_left": True}
     records[1]["tracking"]["true_adjacent_seen"] = {"top_right": False, "bottom_left": False}
     records.append({**_unfold_record(6, "adjacent", False, 50.0), "tracking": {"true_adjacent_seen": {"a": True}}})
     rep = report(records, "python -m launch_scripts.trials --task unfold", {"kind": "corner"})
-    assert rep["summary"]["by_regrasp"]["adjacent"]["not_grasped_blind"] == {"trials": 3, "true_adjacent_corner_in_sight": 1}
+    assert rep["summary"]["by_regrasp"]["adjacent"]["declined"] == {"trials": 3, "true_adjacent_corner_in_sight": 1}
     assert "| 3 (1) |" in markdown(rep)
 
 
@@ -291,16 +339,6 @@ def test_the_report_sets_the_ways_of_choosing_the_second_corner_side_by_side():
     assert "first grasps at a corner" in text and "median corner error" not in text
     corner_only = report([{**_unfold_record(0, "x", True, 1.0), "task": "corner"}], "c", {"kind": "corner"})
     assert "by_regrasp" not in corner_only["summary"] and "median corner error" in markdown(corner_only)
-
-
-def test_no_adjacent_corner_says_whether_the_estimate_was_lost():
-    triangle = dict(vertices=np.eye(3), faces=np.array([[0, 1, 2]], np.int32), boundary=np.arange(3, dtype=np.int32),
-                    canonical=np.eye(3))
-    lost = no_adjacent_corner(MeshEstimate(**triangle, lost=True, confidence=0.0))
-    kept = no_adjacent_corner(MeshEstimate(**triangle, confidence=0.9))
-    assert "flagged lost" in lost
-    assert "not flagged lost" in kept
-    assert no_adjacent_corner(None) == "the planner found no adjacent corner"
 
 
 def test_the_lowest_point_baseline_records_why_when_only_specks_of_cloth_are_seen():
