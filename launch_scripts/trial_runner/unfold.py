@@ -21,7 +21,8 @@ with each frame as the known occluder. The second corner is chosen by
 - "redetect": the perception service is initialised afresh on the hanging cloth and the
   planner's best corner away from the first gripper is taken, without the lift's history.
 
-The record gains ``task``, ``regrasp``, ``first_grasp``, ``second_grasp``, ``unfold``
+The record gains ``task``, ``regrasp``, ``first_grasp``, ``second_grasp`` (for a corner
+declined, only ``declined``: its visibility and measured tip's offset), ``unfold``
 (the judgement), ``tracking`` (error during the lift and at the second plan, frames
 tracked, confidence, and by ground truth which true corners adjacent to the held one the
 camera saw then: ``true_adjacent_seen``) and a picture strip through the lift.
@@ -377,6 +378,9 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
     record["tracking"]["true_adjacent_seen"] = _true_adjacent_seen(scene, tracking.frames["last"], first.grasped_uv)
     if second_plan is None:
         record["failure"] = details.get("reason", "no second grasp")
+        declined = {k: v for k, v in details.items() if k != "reason"}
+        if declined:  # what the robot knew of the corner it declined
+            record["second_grasp"] = {"declined": declined}
         return
     record["second_grasp"] = {"plan_cam": [round(float(v), 4) for v in second_plan.position],
                               "vertex_id": int(second_plan.vertex_id), **details}
