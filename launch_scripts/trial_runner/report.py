@@ -116,7 +116,7 @@ def _unfold_summary(records: list[dict], median) -> dict:
         errors = [(r.get("tracking") or {}).get(key) for r in records]
         return median(e.get(stat) if e else None for e in errors)
 
-    declined = [r for r in records if "not grasped" in (r.get("failure") or "")]
+    declined = [r for r in records if "declined" in (r.get("second_grasp") or {})]
     in_sight = sum(any(((r.get("tracking") or {}).get("true_adjacent_seen") or {}).values()) for r in declined)
     return {"success": _rate(records), "first_grasp_at_corner": _rate(records, "corner_success"),
             "declined": {"trials": len(declined), "true_adjacent_corner_in_sight": in_sight},

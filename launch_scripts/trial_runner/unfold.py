@@ -15,7 +15,7 @@ with each frame as the known occluder. The second corner is chosen by
   ``even_if_lost``; the robot takes a reachable one joined to the held corner by a straight
   edge, seen by the camera and confirmed by the measured surface
   (``sim.laundry.controller.stretchable_corner``), and grasps nothing when the one it would
-  take was not seen (``MIN_CORNER_VISIBLE``) or not confirmed (``surface_confirms``);
+  take was not seen (``MIN_CORNER_VISIBLE``) or not confirmed (``why_not_confirmed``);
 - "lowest": the lowest point of the hanging cloth as the camera sees it (the classic
   regrasp heuristic; ``grasping.lowest_point_grasp``), no tracking needed;
 - "redetect": the perception service is initialised afresh on the hanging cloth and the
@@ -57,7 +57,7 @@ from sim.laundry.controller import (
     default_controller,
     edge_straightness,
     stretchable_corner,
-    surface_confirms,
+    why_not_confirmed,
 )
 from sim.laundry.judge import TOLERANCE_M, judge_unfold, seen_by_camera
 from sim.laundry.pictures import caption, draw_plan, save_png, strip
@@ -170,7 +170,7 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
         if best.visible < MIN_CORNER_VISIBLE:  # nothing seen confirms the estimate's corner
             return None, None, -1, {"reason": f"adjacent corner not seen (visibility {best.visible:.2f} < "
                                               f"{MIN_CORNER_VISIBLE:g}): not grasped blind", **seen}
-        unconfirmed = surface_confirms(best, held_cam)
+        unconfirmed = why_not_confirmed(best, held_cam)
         if unconfirmed:
             return None, None, -1, {"reason": f"adjacent corner not confirmed by the measured surface ({unconfirmed}): "
                                               "not grasped", **seen}
@@ -378,9 +378,8 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
     record["tracking"]["true_adjacent_seen"] = _true_adjacent_seen(scene, tracking.frames["last"], first.grasped_uv)
     if second_plan is None:
         record["failure"] = details.get("reason", "no second grasp")
-        declined = {k: v for k, v in details.items() if k != "reason"}
-        if declined:  # what the robot knew of the corner it declined
-            record["second_grasp"] = {"declined": declined}
+        if "visible" in details:  # a corner declined: what the robot knew of it
+            record["second_grasp"] = {"declined": {k: v for k, v in details.items() if k != "reason"}}
         return
     record["second_grasp"] = {"plan_cam": [round(float(v), 4) for v in second_plan.position],
                               "vertex_id": int(second_plan.vertex_id), **details}

@@ -115,7 +115,7 @@ MAX_TIP_OFFSET_M = 0.06
 MAX_REACH_OVER_MATERIAL = 1.2
 
 
-def surface_confirms(corner: AdjacentCorner, held_point_cam: np.ndarray) -> str:
+def why_not_confirmed(corner: AdjacentCorner, held_point_cam: np.ndarray) -> str:
     """Why the frame does not confirm ``corner`` as the planner placed it, one line; "" when
     it does: the measured surface ends within ``MAX_TIP_OFFSET_M`` of the estimate's corner
     (``tip_offset_m``), and the grasp lies within ``MAX_REACH_OVER_MATERIAL`` times the
@@ -123,7 +123,7 @@ def surface_confirms(corner: AdjacentCorner, held_point_cam: np.ndarray) -> str:
     camera frame. Asked of every corner, since a tracked estimate can be wrong at the
     corner while confident overall, and right there while flagged lost."""
     if corner.tip_offset_m is None:
-        return "no tip of the measured surface within the search"
+        return "no measured tip (no tip search, no frame, or no tip within the search)"
     if corner.tip_offset_m > MAX_TIP_OFFSET_M:
         return f"the measured tip lies {100 * corner.tip_offset_m:.1f} cm from the estimate's corner"
     reach = float(np.linalg.norm(np.asarray(corner.plan.position) - np.asarray(held_point_cam, np.float64)))
@@ -141,15 +141,16 @@ def stretchable_corner(candidates, canonical: np.ndarray, held_vertex: int,
     (a T-shirt's hem, not the side seam that bends under the sleeve), among those one the
     camera saw (``MIN_CORNER_VISIBLE``) and, given where the held point is
     (``held_point_cam`` (3,), metres, the plans' camera frame), among those one the frame
-    confirms (``surface_confirms``); the planner's order decides among equals. None when
-    there are no candidates. The caller still checks what it got: the best may be unseen.
+    confirms (``why_not_confirmed``); the planner's order decides among equals. None when
+    there are no candidates. The caller still checks what it got: the best may be unseen or
+    unconfirmed.
     """
     if not candidates:
         return None
     return min(candidates, key=lambda c: (not c.reachable,
                                           edge_straightness(c, canonical, held_vertex) < MIN_EDGE_STRAIGHTNESS,
                                           c.visible < MIN_CORNER_VISIBLE,
-                                          held_point_cam is not None and bool(surface_confirms(c, held_point_cam))))
+                                          held_point_cam is not None and bool(why_not_confirmed(c, held_point_cam))))
 
 
 #: Corner plans scoring within this of the planner's best are equally good grasps (a cloth

@@ -101,6 +101,11 @@ def test_adjacent_corners_go_to_the_measured_tips_only_when_asked():
     assert np.linalg.norm(right.plan.position - true_corner) < 0.012
     assert right.visible == before.visible and right.plan.vertex_id == before.plan.vertex_id
     # how far the frame says the estimate's corner is from where the towel ends: the 4 cm shift
-    assert before.tip_offset_m is None and right.tip_offset_m == pytest.approx(0.04, abs=0.01)
+    assert before.tip_offset_m is None and right.tip_offset_m == pytest.approx(0.04, abs=0.005)
+    # measured from the estimate's corner vertex to the tip, whatever the grasp's inset
+    inset = adjacent_corners(est, held, GraspPlannerConfig(pinch_inset_m=0.01, tip_search_radius_m=0.1), frame=frame)
+    inset_right = {c.plan.vertex_id: c for c in inset.candidates}[right.plan.vertex_id]
+    assert inset_right.tip_offset_m == pytest.approx(right.tip_offset_m, abs=1e-9)
+    assert np.linalg.norm(inset_right.plan.position - right.plan.position) == pytest.approx(0.01, abs=1e-6)
     with pytest.raises(ValueError, match="tip_search_radius_m >= 0"):
         GraspPlannerConfig(tip_search_radius_m=-0.1)

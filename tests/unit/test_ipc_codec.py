@@ -91,6 +91,19 @@ def test_round_trip_of_optional_parts_left_out():
         assert_same(msg, decode(encode(msg)))
 
 
+def test_a_corners_measured_tip_and_a_request_even_if_lost_travel():
+    ahead, behind = EXAMPLES[m.AdjacentCornersReply].candidates
+    reply = dataclasses.replace(EXAMPLES[m.AdjacentCornersReply],
+                                candidates=(dataclasses.replace(ahead, tip_offset_m=0.031), behind))
+    got = decode(encode(reply))
+    assert [c.tip_offset_m for c in got.candidates] == [0.031, None]
+    fields = header(encode(reply))["fields"]
+    assert [c["tip_offset_m"] for c in fields["candidates"]] == [0.031, None]  # nil, never NaN
+    request = m.AdjacentCornersRequest(held_vertex=3, even_if_lost=True)
+    assert decode(encode(request)).even_if_lost is True
+    assert header(encode(m.AdjacentCornersRequest(held_vertex=3)))["fields"]["even_if_lost"] is False
+
+
 def test_missing_optional_fields_take_their_defaults():
     frames = encode(m.StatusReply(request_id=3))
     top = header(frames)
@@ -268,6 +281,10 @@ CASES = [
     (m.AdjacentCorner, lambda f: f.update(visible=1.5), r"AdjacentCorner\.visible: expected a number in \[0, 1\], got 1\.5"),
     (m.AdjacentCorner, lambda f: f.update(material_distance_m=-1.0), r"AdjacentCorner\.material_distance_m: expected"),
     (m.AdjacentCorner, lambda f: f.update(reachable=1), r"AdjacentCorner\.reachable: expected a bool, got int"),
+    (m.AdjacentCorner, lambda f: f.update(tip_offset_m=-0.01),
+     r"AdjacentCorner\.tip_offset_m: expected a number >= 0\.0, got -0\.01"),
+    (m.AdjacentCornersRequest, lambda f: f.update(even_if_lost=1),
+     r"AdjacentCornersRequest\.even_if_lost: expected a bool, got int"),
     (m.AdjacentCornersRequest, lambda f: f.pop("held_vertex"),
      r"^AdjacentCornersRequest: missing required field 'held_vertex'$"),
     (m.AdjacentCornersRequest, lambda f: f.update(held_vertex=-1),

@@ -20,7 +20,7 @@ from sim.laundry.controller import (
     corner_to_lift_first,
     edge_straightness,
     stretchable_corner,
-    surface_confirms,
+    why_not_confirmed,
 )
 from sim.laundry.judge import MIN_STRETCH, TOLERANCE_M, judge_unfold, seen_by_camera
 from sim.laundry.truth import rectangle_corners_uv, share_an_edge
@@ -99,9 +99,15 @@ def test_a_reachable_corner_comes_before_a_straight_edge():
     assert stretchable_corner((out_of_reach, second), est.canonical, held) is second
 
 
-def _second_plan_on(est, held, candidates):
+#: A camera 1.5 m above the world's origin looking down at 45 degrees: the robot's
+#: kinematics (the world) and the plans (the camera) disagree unless converted.
+CAMERA_POSE = look_at([0.0, -1.0, 1.5], [0.0, 0.3, 0.2])
+
+
+def _second_plan_on(est, held, candidates, held_offset_m=0.0):
     """``_second_plan`` of an "adjacent" trial whose planner answers ``candidates`` on
-    ``est``, the first gripper at the held vertex, the camera at the world's origin."""
+    ``est``, the first gripper at the held vertex (``held_offset_m`` farther along the
+    camera's x), the camera at ``CAMERA_POSE``."""
     from types import SimpleNamespace
 
     from launch_scripts.trial_runner.unfold import _second_plan
@@ -113,8 +119,9 @@ def _second_plan_on(est, held, candidates):
         return SimpleNamespace(candidates=candidates, estimate_seq=7), 1.0
 
     tracking = SimpleNamespace(frames={"last": SimpleNamespace(seq=7)}, estimates={7: est})
-    hand = SimpleNamespace(gripper=SimpleNamespace(position=est.vertices[held]))
-    result = _second_plan(SimpleNamespace(arm="drawn", T_world_cam=np.eye(4)), SimpleNamespace(ask=ask),
+    held_world = transform_points(CAMERA_POSE, (est.vertices[held] + [held_offset_m, 0.0, 0.0])[None])[0]
+    hand = SimpleNamespace(gripper=SimpleNamespace(position=held_world))
+    result = _second_plan(SimpleNamespace(arm="drawn", T_world_cam=CAMERA_POSE), SimpleNamespace(ask=ask),
                           SimpleNamespace(regrasp="adjacent"), tracking, None, held, hand)
     assert asked[0].even_if_lost  # the robot judges each corner itself
     return result
@@ -142,22 +149,22 @@ def test_a_corner_the_camera_did_not_see_is_never_grasped_blind():
     assert details["reason"] == f"adjacent corner not seen (visibility 0.00 < {MIN_CORNER_VISIBLE:g}): not grasped blind"
 
 
-def test_a_corner_is_grasped_only_where_the_measured_surface_confirms_it():
+def test_a_corner_is_grasped_only_where_the_measured_why_not_confirmed_it():
     est = towel_estimate()
     held = int(GraspPlanner().corners(est)[0])
     held_at = est.vertices[held]
     first, second = adjacent_corners(est, held).candidates
     assert first.tip_offset_m is None  # no frame: no tip searched for
-    assert surface_confirms(first, held_at) == "no tip of the measured surface within the search"
-    assert surface_confirms(confirmed(first, MAX_TIP_OFFSET_M), held_at) == ""
+    assert why_not_confirmed(first, held_at) == "no measured tip (no tip search, no frame, or no tip within the search)"
+    assert why_not_confirmed(confirmed(first, MAX_TIP_OFFSET_M), held_at) == ""
     far_tip = confirmed(first, MAX_TIP_OFFSET_M + 0.01)
-    assert surface_confirms(far_tip, held_at) == \
+    assert why_not_confirmed(far_tip, held_at) == \
         f"the measured tip lies {100 * (MAX_TIP_OFFSET_M + 0.01):.1f} cm from the estimate's corner"
     # a corner farther from the gripper than the cloth between them allows
     length = first.material_distance_m
     assert float(np.linalg.norm(first.plan.position - held_at)) <= MAX_REACH_OVER_MATERIAL * length
     stretched = dataclasses.replace(confirmed(first), material_distance_m=0.5 * length)
-    assert "from the held corner, along an edge" in surface_confirms(stretched, held_at)
+    assert "from the held corner, along an edge" in why_not_confirmed(stretched, held_at)
 
     # the confirmed one is preferred, though ranked second; neither confirmed: nothing grasped
     assert stretchable_corner((first, confirmed(second)), est.canonical, held, held_at).plan is second.plan
@@ -168,6 +175,12 @@ def test_a_corner_is_grasped_only_where_the_measured_surface_confirms_it():
     assert plan is None and distance is None and vertex == -1
     assert details["reason"] == (f"adjacent corner not confirmed by the measured surface (the measured tip lies "
                                  f"{100 * (MAX_TIP_OFFSET_M + 0.01):.1f} cm from the estimate's corner): not grasped")
+    # the gripper, in the world, 25 cm farther from the corners than the mesh's held vertex: each is
+    # then farther from the held corner than its edge allows (a towel 40 x 30 cm)
+    both = (confirmed(first), confirmed(second))
+    assert _second_plan_on(est, held, both)[0] is first.plan
+    plan, _, _, details = _second_plan_on(est, held, both, held_offset_m=-0.25)
+    assert plan is None and "from the held corner, along an edge" in details["reason"]
 
 
 def test_lift_target_leaves_the_cloth_hanging_clear():
@@ -302,9 +315,9 @@ def test_the_report_counts_corners_declined_that_were_in_sight():
     from launch_scripts.trial_runner.report import markdown, report
 
     blind = "adjacent corner not seen (visibility 0.00 < 0.25): not grasped blind"
-    unconfirmed = ("adjacent corner not confirmed by the measured surface (no tip of the measured surface within the "
-                   "search): not grasped")
-    records = [{**_unfold_record(seed, "adjacent", False, 50.0), "failure": reason}
+    unconfirmed = "adjacent corner not confirmed by the measured surface (no measured tip ...): not grasped"
+    records = [{**_unfold_record(seed, "adjacent", False, 50.0), "failure": reason,
+                "second_grasp": {"declined": {"visible": 0.0, "n_candidates": 2, "tip_offset_m": None}}}
                for seed, reason in ((0, blind), (2, unconfirmed), (4, blind))]
     records[0]["tracking"]["true_adjacent_seen"] = {"top_right": False, "bottom_left": True}
     records[1]["tracking"]["true_adjacent_seen"] = {"top_right": False, "bottom_left": False}
