@@ -62,7 +62,7 @@ from sim.laundry.controller import (
 from sim.laundry.judge import TOLERANCE_M, judge_unfold, seen_by_camera
 from sim.laundry.pictures import caption, draw_plan, save_png, strip
 from sim.laundry.segment import cloth_seen, mask_from_reference, seen_cloth_points
-from sim.laundry.truth import nearest_corner, share_an_edge
+from sim.laundry.truth import material_extent, nearest_corner, share_an_edge
 from sim.laundry.unfold import TautSensor, arm_for, lift_target, second_fingertip, stretch_targets
 
 log = logging.getLogger(__name__)
@@ -449,13 +449,16 @@ def _finite(value: float) -> float | None:
 
 
 def _grasp_record(closing, scene) -> dict:
-    """What a gripper closed on: the material point, the nearest true corner and the distance to it."""
+    """What a gripper closed on: the material point, the nearest true corner and the distance
+    to it, and how far apart along the cloth the material in its jaw lies
+    (``material_extent_m``: far more than the jaw's width when it closed on two layers)."""
     if closing.grasped_uv is None:
         return {"held": False}
     k, error = nearest_corner(closing.grasped_uv, scene.spec.corners_uv)
     return {"held": True, "uv": [round(float(v), 4) for v in closing.grasped_uv],
             "nearest_corner": scene.spec.corner_names[k], "corner_error_m": round(error, 4),
-            "at_corner": error <= TOLERANCE_M}
+            "at_corner": error <= TOLERANCE_M,
+            "material_extent_m": round(material_extent(scene.uv_m, closing.held_nodes), 4)}
 
 
 def _true_adjacent_seen(scene, frame, first_uv) -> dict:

@@ -80,6 +80,21 @@ CORNER_EDGES = {
 }
 
 
+def material_extent(uv_m: np.ndarray, nodes: np.ndarray) -> float:
+    """The largest distance along the cloth between two of ``nodes``, metres.
+
+    uv_m : (V, 2) float metres, every node's material coordinates; nodes : (K,) int, e.g.
+    the nodes a gripper's jaw holds. A jaw a few centimetres wide that closes on one layer
+    holds nodes a few centimetres apart; one that closes on a fold's two layers holds
+    material points far apart along the cloth (the two corners of a towel folded in half),
+    and no stretch can pull those apart. 0 for fewer than two nodes.
+    """
+    uv = np.asarray(uv_m, dtype=np.float64)[np.asarray(nodes, dtype=np.int64).reshape(-1)]
+    if len(uv) < 2:
+        return 0.0
+    return float(np.max(np.linalg.norm(uv[:, None, :] - uv[None, :, :], axis=-1)))
+
+
 def share_an_edge(cloth_kind: str, corner_a: int, corner_b: int) -> bool:
     """Whether two true corners (indices) of a cloth of kind ``cloth_kind`` share an edge (``CORNER_EDGES``)."""
     if cloth_kind not in CORNER_EDGES:

@@ -9,6 +9,7 @@ from scipy.spatial.transform import Rotation
 from grasping import GraspPlanner, adjacent_corners
 from ipc.messages import GraspPlan, MeshEstimate
 from perception.geometry import look_at, project, transform_points
+from sim.cloth_mesh import rectangle_cloth
 from sim.grasp_execution import move_grippers
 from sim.laundry import LaundryScene, laundry_spec
 from sim.laundry.controller import (
@@ -23,7 +24,7 @@ from sim.laundry.controller import (
     why_not_confirmed,
 )
 from sim.laundry.judge import MIN_STRETCH, TOLERANCE_M, judge_unfold, seen_by_camera
-from sim.laundry.truth import rectangle_corners_uv, share_an_edge
+from sim.laundry.truth import material_extent, rectangle_corners_uv, share_an_edge
 from sim.laundry.unfold import TautSensor, UnfoldConfig, arm_for, lift_target, shoulders, stretch_targets
 from tests.unit.test_grasp_adjacent import polygon_corner_of, polygon_estimate, towel_estimate, tshirt_estimate
 
@@ -446,3 +447,19 @@ def test_a_blunt_corner_is_not_lifted_first_even_when_it_faces_the_camera_best()
     chosen = corner_to_lift_first(plans, sheet, T_ROOM)
     assert kind[chosen.vertex_id] != 3
     assert facing[chosen.vertex_id] == max(f for v, f in facing.items() if kind[v] != 3)
+
+
+def test_material_extent_tells_a_jaw_on_two_layers_from_one_on_a_single_layer():
+    cloth = rectangle_cloth(0.5, 0.4, spacing_m=0.02)
+    uv = cloth.uv_m
+
+    def near(corner):
+        return np.flatnonzero(np.linalg.norm(uv - np.array(corner), axis=1) <= 0.03)
+
+    one_layer = near([0.0, 0.0])
+    assert len(one_layer) >= 3
+    assert material_extent(uv, one_layer) <= 0.06
+    # a towel folded in half brings its bottom-left corner onto its top-left one: a jaw there holds both
+    two_layers = np.concatenate([one_layer, near([0.0, 0.4])])
+    assert material_extent(uv, two_layers) == pytest.approx(0.4, abs=0.06)
+    assert material_extent(uv, one_layer[:1]) == 0.0
