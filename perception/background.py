@@ -78,16 +78,9 @@ def seen_through(vertices: np.ndarray, K: np.ndarray, differs: np.ndarray, depth
     on it (a cloth of the table's colour lying on the table).
     """
     h, w = differs.shape
+    near_object = cv2.dilate(differs.astype(np.uint8), np.ones((2 * EDGE_PX + 1,) * 2, np.uint8)).astype(bool)
     cols, rows, inside = pixel_index(project(vertices, K), w, h)
     d = depth_m[rows, cols]
     with np.errstate(invalid="ignore"):
         in_front = ~(np.isfinite(d) & (d > 0)) | (vertices[:, 2] < d - tol_m)
-    return inside & empty_workspace(differs)[rows, cols] & in_front
-
-
-def empty_workspace(differs: np.ndarray) -> np.ndarray:
-    """(H, W) bool: the pixels that show the empty workspace, those that do not differ from it
-    (``differs`` (H, W) bool, ``differs_from_background``) and lie farther than ``EDGE_PX``
-    from any that does (an object's rim blurs into its background)."""
-    near_object = cv2.dilate(differs.astype(np.uint8), np.ones((2 * EDGE_PX + 1,) * 2, np.uint8))
-    return ~near_object.astype(bool)
+    return inside & ~near_object[rows, cols] & in_front

@@ -305,16 +305,13 @@ class OutsideTerm:
     is a boundary vertex near the outline, no other pull: the part of a mesh left behind
     stays behind, held only by the stretch of its edges. This pulls every such vertex to
     the object's outline; a vertex hidden behind something nearer is not seen and not pulled.
-    Nor is one on a pixel without measured depth, unless the empty workspace is seen there:
-    the segmentation may have missed the cloth there (a part of the table's colour, seen at
-    a grazing angle, loses its depth), but not where nothing differs from the workspace (a
-    hanging cloth's corner flung out beyond its outline, against a room too far for depth).
+    Nor is one on a pixel without measured depth: the segmentation may have missed the cloth
+    there (a part of the table's colour, seen at a grazing angle, loses its depth).
 
     outline_points : (P, 3) float64 metres, the object's outline in 3D
     mask : (H, W) bool object mask; K : (3, 3)
     vertex_mask : (N,) bool, the vertices seen (the only ones the term may pull)
-    measured : (H, W) bool, the pixels where the mask's "not the object" is trusted: those
-        with measured depth and those that show the empty workspace; None for all
+    measured : (H, W) bool, the pixels with measured depth, or None for all
     """
 
     outline_points: np.ndarray

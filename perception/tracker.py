@@ -42,7 +42,7 @@ from threadpoolctl import ThreadpoolController
 from ipc.messages import MeshEstimate, RGBDFrame
 from perception.anchors import TextureAnchors
 from perception.appearance import AppearanceModel
-from perception.background import check_background, differs_from_background, empty_workspace, seen_through
+from perception.background import check_background, differs_from_background, seen_through
 from perception.coarse import MIN_RESPONSE, FrameMemory
 from perception.colour_model import ColourModel
 from perception.confidence import Assessment, assess
@@ -525,13 +525,10 @@ class MeshTracker:
                             obs.hidden_contour_cam)
 
     def _data_terms(self, obs: Observation, correspondences: CorrespondenceTerm | None,
-                    observed: np.ndarray | None = None, prior: np.ndarray | None = None, frame: RGBDFrame | None = None,
-                    differs: np.ndarray | None = None):
+                    observed: np.ndarray | None = None, prior: np.ndarray | None = None, frame: RGBDFrame | None = None):
         """(weight, term) pairs for one frame. observed : (N,) bool, the vertices the data may
         pull (all if None); the others are held by the motion prior around ``prior`` (N, 3).
-        ``frame``'s held vertices, if any, are kept at the robot's grippers. ``differs`` (H, W)
-        bool, the pixels that differ from the empty workspace (``_differs``), tells the
-        outside term where a pixel without depth is the workspace, not the object."""
+        ``frame``'s held vertices, if any, are kept at the robot's grippers."""
         cfg = self.config
         terms = []
         if correspondences is not None and cfg.use_correspondence and len(correspondences.targets):
@@ -544,12 +541,8 @@ class MeshTracker:
         if cfg.use_boundary and len(obs.outline_cam):
             terms.append((cfg.lambda_b, self._boundary_term(obs, self._g0, observed)))
         if cfg.lambda_o > 0 and observed is not None and len(obs.outline_cam):
-            trusted = None
-            if frame is not None:
-                trusted = valid_depth(frame.depth_m)
-                if differs is not None:  # no depth, but the empty workspace seen there: not the object
-                    trusted |= empty_workspace(differs)
-            terms.append((cfg.lambda_o, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed, trusted)))
+            measured = None if frame is None else valid_depth(frame.depth_m)
+            terms.append((cfg.lambda_o, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed, measured)))
         if observed is not None and prior is not None and cfg.lambda_m > 0 and not observed.all():
             terms.append((cfg.lambda_m, MotionPriorTerm.around(self._edges, ~observed, prior)))
         if cfg.lambda_l > 0 and self._stretch is not None:
@@ -882,7 +875,7 @@ class MeshTracker:
             if has.any():
                 B = barycentric_matrix(fid[has], bary[has], faces, self.mesh.n_vertices)
                 corr = CorrespondenceTerm(B, pts[has], np.ones(int(has.sum())))
-        terms = self._data_terms(obs, corr, observed, V_pred, frame, differs)
+        terms = self._data_terms(obs, corr, observed, V_pred, frame)
         V = V_pred
         stages = cfg.outlier_radii_m if corr is not None else (None,)
         budget = max(1, cfg.max_iterations // len(stages))
