@@ -450,7 +450,7 @@ def _finite(value: float) -> float | None:
 
 def _grasp_record(closing, scene) -> dict:
     """What a gripper closed on: the material point, the nearest true corner and the distance
-    to it, and how far apart along the cloth the material in its jaw lies
+    to it, and how far apart on the flat cloth the material in its jaw lies
     (``material_extent_m``: far more than the jaw's width when it closed on two layers)."""
     if closing.grasped_uv is None:
         return {"held": False}

@@ -81,12 +81,12 @@ CORNER_EDGES = {
 
 
 def material_extent(uv_m: np.ndarray, nodes: np.ndarray) -> float:
-    """The largest distance along the cloth between two of ``nodes``, metres.
+    """The largest distance between two of ``nodes`` on the flat cloth (material coordinates), metres.
 
     uv_m : (V, 2) float metres, every node's material coordinates; nodes : (K,) int, e.g.
     the nodes a gripper's jaw holds. A jaw a few centimetres wide that closes on one layer
     holds nodes a few centimetres apart; one that closes on a fold's two layers holds
-    material points far apart along the cloth (the two corners of a towel folded in half),
+    material points far apart on the cloth (the two corners of a towel folded in half),
     and no stretch can pull those apart. 0 for fewer than two nodes.
     """
     uv = np.asarray(uv_m, dtype=np.float64)[np.asarray(nodes, dtype=np.int64).reshape(-1)]
