@@ -8,6 +8,7 @@ its pose. The corners come from the outline's construction, never from mesh indi
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.distance import pdist
 
 from sim.cloth_mesh import TShirtShape
 
@@ -90,9 +91,7 @@ def material_extent(uv_m: np.ndarray, nodes: np.ndarray) -> float:
     and no stretch can pull those apart. 0 for fewer than two nodes.
     """
     uv = np.asarray(uv_m, dtype=np.float64)[np.asarray(nodes, dtype=np.int64).reshape(-1)]
-    if len(uv) < 2:
-        return 0.0
-    return float(np.max(np.linalg.norm(uv[:, None, :] - uv[None, :, :], axis=-1)))
+    return float(pdist(uv).max()) if len(uv) >= 2 else 0.0
 
 
 def share_an_edge(cloth_kind: str, corner_a: int, corner_b: int) -> bool:
