@@ -111,18 +111,23 @@ def _unfold_summary(records: list[dict], median) -> dict:
     plan (medians over trials of their mean and p95, mm) and trial time of unfold trials;
     of the trials that declined the corner they would have taken (unseen, or not confirmed
     by the measured surface), how many had a true adjacent corner in the camera's sight all
-    the same (``tracking.true_adjacent_seen``)."""
+    the same (``tracking.true_adjacent_seen``); and, summed over the trials' lifts and hangs
+    up to the second plan (``tracking.honesty``), the frames tracked, those wrong, wrong with
+    confidence 0.5 or more, and wrong yet not flagged lost after 3 wrong frames."""
     def err(key: str, stat: str):
         errors = [(r.get("tracking") or {}).get(key) for r in records]
         return median(e.get(stat) if e else None for e in errors)
 
     declined = [r for r in records if "declined" in (r.get("second_grasp") or {})]
+    honesty = [h for h in ((r.get("tracking") or {}).get("honesty") for r in records) if h]
+    frames = {key: sum(h[key] for h in honesty) for key in ("frames", "wrong", "wrong_confident", "wrong_not_lost_after_3")}
     in_sight = sum(any(((r.get("tracking") or {}).get("true_adjacent_seen") or {}).values()) for r in declined)
     return {"success": _rate(records), "first_grasp_at_corner": _rate(records, "corner_success"),
             "declined": {"trials": len(declined), "true_adjacent_corner_in_sight": in_sight},
             "median_lift_error_mm": {"mean": err("lift_error_mm", "mean"), "p95": err("lift_error_mm", "p95")},
             "median_second_plan_error_mm": {"mean": err("second_plan_error_mm", "mean"),
                                             "p95": err("second_plan_error_mm", "p95")},
+            "lift_and_hang_frames": frames,
             "median_frames_tracked": median((r.get("tracking") or {}).get("frames_tracked") for r in records),
             "median_total_s": median(r.get("timing", {}).get("total_s") for r in records)}
 
@@ -185,16 +190,21 @@ def markdown(rep: dict) -> str:
                   "Declined: trials that grasped nothing rather than a corner the estimate said was unseen or "
                   "the measured surface did not confirm, and of them how many had a true adjacent corner in the "
                   "camera's sight (ground truth).", "",
+                  "Wrong frames: of the frames of the lifts and hangs up to the second plan, those whose mean "
+                  "error exceeds 30 mm: how many, how many of them with confidence 0.5 or more, and how many "
+                  "not flagged lost after 3 wrong frames in a row.", "",
                   "| second corner | success | first grasp at a corner | error during the lift | "
-                  "error at the second plan | declined (true corner in sight) | frames tracked | trial s |",
-                  "| --- | --- | --- | --- | --- | --- | --- | --- |"]
+                  "error at the second plan | declined (true corner in sight) | wrong frames: all / confident / "
+                  "not lost after 3 | frames tracked | trial s |",
+                  "| --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
         for name, u in s["by_regrasp"].items():
             lift, second = u["median_lift_error_mm"], u["median_second_plan_error_mm"]
-            declined = u["declined"]
+            declined, wrong = u["declined"], u["lift_and_hang_frames"]
             lines.append(f"| {name} | {pct(u['success'])} | {pct(u['first_grasp_at_corner'])} | "
                          f"{lift['mean']} / {lift['p95']} | {second['mean']} / {second['p95']} | "
                          f"{declined['trials']} ({declined['true_adjacent_corner_in_sight']}) | "
-                         f"{u['median_frames_tracked']} | {u['median_total_s']} |")
+                         f"{wrong['wrong']} / {wrong['wrong_confident']} / {wrong['wrong_not_lost_after_3']} of "
+                         f"{wrong['frames']} | {u['median_frames_tracked']} | {u['median_total_s']} |")
         lines.append("")
     if s["failures"]:
         lines += ["| failure | trials |", "| --- | --- |", *[f"| {k} | {n} |" for k, n in s["failures"].items()], ""]

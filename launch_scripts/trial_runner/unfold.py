@@ -24,8 +24,10 @@ with each frame as the known occluder. The second corner is chosen by
 The record gains ``task``, ``regrasp``, ``first_grasp``, ``second_grasp`` (for a corner
 declined, only ``declined``: its visibility and measured tip's offset), ``unfold``
 (the judgement), ``tracking`` (error during the lift and at the second plan, frames
-tracked, confidence, and by ground truth which true corners adjacent to the held one the
-camera saw then: ``true_adjacent_seen``) and a picture strip through the lift.
+tracked, confidence, how many frames of the lift and the hang the estimate got wrong and
+reported with confidence all the same (``honesty``), and by ground truth which true corners
+adjacent to the held one the camera saw then: ``true_adjacent_seen``) and a picture strip
+through the lift.
 """
 
 from __future__ import annotations
@@ -48,6 +50,7 @@ from ipc.messages import (
 )
 from perception.geometry import invert_transform, rigid_transform, transform_points
 from perception.hanging import HangingCue
+from sim.evaluation.handled import CONFIDENT, WRONG_MM, unflagged_late
 from sim.grasp_execution import close_fingers, fingertip_target, move_grippers, plan_to_world, pull_apart
 from sim.ground_truth import error_summary, vertex_errors
 from sim.laundry.controller import (
@@ -131,19 +134,42 @@ def _held_vertex(plan: GraspPlan, reply, estimate: MeshEstimate) -> int:
     return int(np.argmin(np.linalg.norm(estimate.vertices - plan.position, axis=1)))
 
 
-def _lift_errors(estimates: dict, truth: dict, faces: np.ndarray, seqs: list[int]) -> dict | None:
-    """Mean and 95th percentile (mm) of the material-point error over ``seqs`` (from the
-    first estimate on), or None when the tracker changed its mesh on the way."""
+def _frame_errors(estimates: dict, truth: dict, faces: np.ndarray, last_seq: int) -> dict:
+    """{seq: (N,) material-point error in metres} of the estimates up to ``last_seq``, measured
+    from the first estimate on, as far as the tracker kept its first mesh."""
     first = min(estimates)
-    upto = [s for s in sorted(estimates) if s <= max(seqs)]
     n = estimates[first].vertices.shape[0]
-    if any(estimates[s].vertices.shape[0] != n for s in upto):
-        return None
+    upto = []
+    for s in sorted(estimates):
+        if s > last_seq or estimates[s].vertices.shape[0] != n:
+            break
+        upto.append(s)
     errors = vertex_errors(np.stack([estimates[s].vertices for s in upto]), np.stack([truth[s] for s in upto]), faces)
-    index = {s: i for i, s in enumerate(upto)}
-    chosen = errors[[index[s] for s in seqs if s in index]]
-    summary = error_summary(chosen)
+    return dict(zip(upto, errors))
+
+
+def _lift_errors(errors: dict, seqs: list[int]) -> dict | None:
+    """Mean and 95th percentile (mm) of ``errors`` (``_frame_errors``) over ``seqs``; None
+    when some of them have none (the tracker changed its mesh before)."""
+    if not seqs or any(s not in errors for s in seqs):
+        return None
+    summary = error_summary(np.stack([errors[s] for s in seqs]))
     return {"mean": round(summary["mean_mm"], 2), "p95": round(summary["p95_mm"], 2)}
+
+
+def _honesty(errors: dict, estimates: dict, seqs: list[int]) -> dict | None:
+    """Over the frames ``seqs`` (the lift and the hang, up to the second plan), how many the
+    estimate got wrong (mean error over ``sim.evaluation.handled.WRONG_MM``), how many of those
+    it reported with confidence ``CONFIDENT`` or more, and how many it had not flagged lost
+    ``LOST_WITHIN`` wrong frames later: issue 11's loss target, on the robot's own lift. None
+    when some of them have no error (the tracker changed its mesh before)."""
+    if not seqs or any(s not in errors for s in seqs):
+        return None
+    wrong = np.array([1000.0 * errors[s].mean() > WRONG_MM for s in seqs], bool)
+    confident = np.array([estimates[s].confidence >= CONFIDENT for s in seqs], bool)
+    lost = np.array([estimates[s].lost for s in seqs], bool)
+    return {"frames": len(seqs), "wrong": int(wrong.sum()), "wrong_confident": int((wrong & confident).sum()),
+            "wrong_not_lost_after_3": int(unflagged_late(wrong, lost).sum())}
 
 
 def _second_plan(scene, link, config, tracking: _Tracking, reference, held_vertex: int, first_hand) -> tuple:
@@ -476,7 +502,8 @@ def _true_adjacent_seen(scene, frame, first_uv) -> dict:
 def _tracking_record(tracking: _Tracking, scene, lift_seqs: list[int], plan_seq: int, errors: bool = True) -> dict:
     """Frames tracked (by phase, how many flagged lost, how many carried the hanging cloth's
     lowest point) and, with ``errors``, the tracking error during the lift and at the second
-    plan and the confidence then."""
+    plan, the confidence then, and how honest the confidence was over the lift and the hang
+    (``_honesty``)."""
     estimates = tracking.estimates
     by_phase: dict[str, int] = {}
     for phase in tracking.phases.values():
@@ -486,10 +513,13 @@ def _tracking_record(tracking: _Tracking, scene, lift_seqs: list[int], plan_seq:
               "frames_with_lowest_point": tracking.lowest_sent}
     if not errors:
         return counts
-    return {"lift_error_mm": _lift_errors(estimates, tracking.truth, scene.faces, lift_seqs),
-            "second_plan_error_mm": _lift_errors(estimates, tracking.truth, scene.faces, [plan_seq]),
+    frame_errors = _frame_errors(estimates, tracking.truth, scene.faces, plan_seq)
+    return {"lift_error_mm": _lift_errors(frame_errors, lift_seqs),
+            "second_plan_error_mm": _lift_errors(frame_errors, [plan_seq]),
             "confidence_at_second_plan": round(float(estimates[plan_seq].confidence), 3),
-            "lost_at_second_plan": bool(estimates[plan_seq].lost), **counts}
+            "lost_at_second_plan": bool(estimates[plan_seq].lost),
+            "honesty": _honesty(frame_errors, estimates, list(range(lift_seqs[0], plan_seq + 1)) if lift_seqs else []),
+            **counts}
 
 
 def _pictures(scene, tracking: _Tracking, record: dict, config) -> str:

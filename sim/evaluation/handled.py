@@ -54,6 +54,17 @@ WORST_AREA_MIN = 0.02
 HOLD_REACH_M = 0.03
 
 
+def unflagged_late(wrong: np.ndarray, lost: np.ndarray) -> np.ndarray:
+    """(T,) bool: the frames of a run that are ``wrong`` (T,) bool and not flagged ``lost``
+    (T,) bool although ``LOST_WITHIN`` wrong frames came right before them."""
+    late = np.zeros(len(wrong), bool)
+    streak = 0  # wrong frames in a row before this one
+    for i, w in enumerate(wrong):
+        late[i] = bool(w) and streak >= LOST_WITHIN and not bool(lost[i])
+        streak = streak + 1 if w else 0
+    return late
+
+
 @dataclass
 class HandledScore:
     """Per-frame ground-truth scores of one tracking run (T frames).
@@ -99,13 +110,7 @@ class HandledScore:
 
     def wrong_unflagged_late(self) -> np.ndarray:
         """(T,) bool, wrong frames not flagged lost after ``LOST_WITHIN`` wrong frames in a row."""
-        wrong = self.wrong()
-        late = np.zeros(len(wrong), bool)
-        streak = 0  # wrong frames in a row before this one
-        for i, w in enumerate(wrong):
-            late[i] = bool(w) and streak >= LOST_WITHIN and not bool(self.lost[i])
-            streak = streak + 1 if w else 0
-        return late
+        return unflagged_late(self.wrong(), self.lost)
 
     def summary(self, frames: np.ndarray | None = None) -> dict:
         """Scores over all frames, or over the frame indices ``frames`` (int array)."""

@@ -328,6 +328,33 @@ def test_the_report_counts_corners_declined_that_were_in_sight():
     assert "| 3 (1) |" in markdown(rep)
 
 
+def test_the_lift_is_scored_for_wrong_frames_reported_with_confidence():
+    from types import SimpleNamespace
+
+    from launch_scripts.trial_runner.unfold import _honesty
+
+    # 8 frames of 10 vertices: right (1 cm off) in frames 0-1, wrong (5 cm off) from frame 2 on,
+    # confident until frame 5, flagged lost from frame 6 (the 4th wrong frame onwards in 5)
+    errors = {s: np.full(10, 0.01 if s < 2 else 0.05) for s in range(8)}
+    estimates = {s: SimpleNamespace(confidence=0.9 if s < 6 else 0.2, lost=s >= 6) for s in range(8)}
+    assert _honesty(errors, estimates, list(range(8))) == \
+        {"frames": 8, "wrong": 6, "wrong_confident": 4, "wrong_not_lost_after_3": 1}  # frame 5
+    assert _honesty(errors, estimates, [0, 1]) == {"frames": 2, "wrong": 0, "wrong_confident": 0,
+                                                    "wrong_not_lost_after_3": 0}
+    # a frame without an error (a mesh built anew) leaves the lift unscored
+    assert _honesty(errors, estimates, list(range(9))) is None and _honesty(errors, estimates, []) is None
+
+    from launch_scripts.trial_runner.report import markdown, report
+
+    records = [_unfold_record(0, "adjacent", True, 40.0), _unfold_record(2, "adjacent", False, 60.0)]
+    records[0]["tracking"]["honesty"] = _honesty(errors, estimates, list(range(8)))
+    records[1]["tracking"]["honesty"] = {"frames": 100, "wrong": 10, "wrong_confident": 3, "wrong_not_lost_after_3": 2}
+    rep = report(records, "python -m launch_scripts.trials --task unfold", {"kind": "corner"})
+    assert rep["summary"]["by_regrasp"]["adjacent"]["lift_and_hang_frames"] == \
+        {"frames": 108, "wrong": 16, "wrong_confident": 7, "wrong_not_lost_after_3": 3}
+    assert "| 16 / 7 / 3 of 108 |" in markdown(rep)
+
+
 def _unfold_record(seed, regrasp, success, lift_mean):
     return {"seed": seed, "task": "unfold", "regrasp": regrasp, "kind": "corner", "success": success,
             "corner_success": True, "failure": "" if success else "the held corners do not share an edge",
