@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.evaluation.handled import CONFIDENT, LOST_WITHIN, WRONG_MM
 from sim.laundry.judge import TOLERANCE_M
 
 log = logging.getLogger(__name__)
@@ -112,8 +113,8 @@ def _unfold_summary(records: list[dict], median) -> dict:
     of the trials that declined the corner they would have taken (unseen, or not confirmed
     by the measured surface), how many had a true adjacent corner in the camera's sight all
     the same (``tracking.true_adjacent_seen``); and, summed over the trials' lifts and hangs
-    up to the second plan (``tracking.honesty``), the frames tracked, those wrong, wrong with
-    confidence 0.5 or more, and wrong yet not flagged lost after 3 wrong frames."""
+    up to the second plan (``tracking.honesty``), the frames tracked, those wrong, wrong and
+    confident, and wrong yet not flagged lost in time (``sim.evaluation.handled``)."""
     def err(key: str, stat: str):
         errors = [(r.get("tracking") or {}).get(key) for r in records]
         return median(e.get(stat) if e else None for e in errors)
@@ -190,9 +191,9 @@ def markdown(rep: dict) -> str:
                   "Declined: trials that grasped nothing rather than a corner the estimate said was unseen or "
                   "the measured surface did not confirm, and of them how many had a true adjacent corner in the "
                   "camera's sight (ground truth).", "",
-                  "Wrong frames: of the frames of the lifts and hangs up to the second plan, those whose mean "
-                  "error exceeds 30 mm: how many, how many of them with confidence 0.5 or more, and how many "
-                  "not flagged lost after 3 wrong frames in a row.", "",
+                  f"Wrong frames: of the frames of the lifts and hangs up to the second plan, those whose mean "
+                  f"error exceeds {WRONG_MM:g} mm: how many, how many of them with confidence {CONFIDENT:g} or more, "
+                  f"and how many not flagged lost after {LOST_WITHIN} wrong frames in a row.", "",
                   "| second corner | success | first grasp at a corner | error during the lift | "
                   "error at the second plan | declined (true corner in sight) | wrong frames: all / confident / "
                   "not lost after 3 | frames tracked | trial s |",

@@ -334,7 +334,8 @@ def test_the_lift_is_scored_for_wrong_frames_reported_with_confidence():
     from launch_scripts.trial_runner.unfold import _honesty
 
     # 8 frames of 10 vertices: right (1 cm off) in frames 0-1, wrong (5 cm off) from frame 2 on,
-    # confident until frame 5, flagged lost from frame 6 (the 4th wrong frame onwards in 5)
+    # confident until frame 5, flagged lost from frame 6: frame 5, the fourth wrong frame in a
+    # row, is the one not flagged in time
     errors = {s: np.full(10, 0.01 if s < 2 else 0.05) for s in range(8)}
     estimates = {s: SimpleNamespace(confidence=0.9 if s < 6 else 0.2, lost=s >= 6) for s in range(8)}
     assert _honesty(errors, estimates, list(range(8))) == \
