@@ -270,10 +270,12 @@ class GraspPlan:
         object.__setattr__(self, "position", _check_array("GraspPlan.position", self.position, (3,), np.float64, finite=True))
         a = _check_array("GraspPlan.approach", self.approach, (3,), np.float64, finite=True)
         q = _check_array("GraspPlan.quat_xyzw", self.quat_xyzw, (4,), np.float64, finite=True)
-        if abs(np.linalg.norm(a) - 1.0) > 1e-6:
-            raise ValueError(f"GraspPlan.approach: expected a unit vector, got norm {np.linalg.norm(a):.6g}")
-        if abs(np.linalg.norm(q) - 1.0) > 1e-6:
-            raise ValueError(f"GraspPlan.quat_xyzw: expected a unit quaternion, got norm {np.linalg.norm(q):.6g}")
+        with np.errstate(over="ignore"):  # a huge component (a corrupt message) is reported as norm inf
+            norm_a, norm_q = float(np.linalg.norm(a)), float(np.linalg.norm(q))
+        if abs(norm_a - 1.0) > 1e-6:
+            raise ValueError(f"GraspPlan.approach: expected a unit vector, got norm {norm_a:.6g}")
+        if abs(norm_q - 1.0) > 1e-6:
+            raise ValueError(f"GraspPlan.quat_xyzw: expected a unit quaternion, got norm {norm_q:.6g}")
         if self.kind not in self.KINDS:
             raise ValueError(f"GraspPlan.kind: expected one of {self.KINDS}, got {self.kind!r}")
         if not (math.isfinite(float(self.opening_width_m)) and float(self.opening_width_m) > 0):

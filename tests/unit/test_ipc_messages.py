@@ -52,6 +52,20 @@ def test_grasp_plan_reply_orders_best_first():
         m.GraspPlanReply(candidates=("corner",))
 
 
+def test_grasp_plan_with_a_huge_component_is_refused_in_one_line_without_a_warning():
+    import warnings
+
+    plan = example_messages()[m.GraspPlanReply].candidates[0]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a corrupt message must not make NumPy warn in a service's log
+        with pytest.raises(ValueError, match=r"^GraspPlan\.quat_xyzw: expected a unit quaternion, got norm inf$"):
+            m.GraspPlan(position=plan.position, approach=plan.approach, quat_xyzw=[1e300, 0.0, 0.0, 1.0],
+                        opening_width_m=0.04, score=0.5, vertex_id=1, kind="corner")
+        with pytest.raises(ValueError, match=r"^GraspPlan\.approach: expected a unit vector, got norm 2$"):
+            m.GraspPlan(position=plan.position, approach=[0.0, 0.0, 2.0], quat_xyzw=plan.quat_xyzw,
+                        opening_width_m=0.04, score=0.5, vertex_id=1, kind="corner")
+
+
 def test_adjacent_corner_checks_its_fields():
     ex = example_messages()[m.AdjacentCorner]
     assert (ex.side, ex.material_distance_m, ex.visible, ex.reachable) == (1, 0.1, 1.0, True)
