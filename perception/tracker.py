@@ -45,7 +45,7 @@ from perception.appearance import AppearanceModel
 from perception.background import check_background, differs_from_background, seen_through
 from perception.coarse import MIN_RESPONSE, FrameMemory
 from perception.colour_model import ColourModel
-from perception.confidence import Assessment, assess
+from perception.confidence import Assessment, assess, material_cap, reshaping
 from perception.energy import (
     DEPTH_RESIDUALS,
     BoundaryTerm,
@@ -323,6 +323,7 @@ class MeshTracker:
         self._faces_out = None
         self._edges = None
         self._visible = None  # (N,) bool, the vertices seen in the last frame
+        self._laid_V = None
         self._unknown_occluder = None  # (H, W) bool, the objects in front found in the last frame
         self._memory = FrameMemory()
         self.coarse_corrections = 0  # frames predicted otherwise than by constant velocity
@@ -481,6 +482,7 @@ class MeshTracker:
         self._registration = GlobalRegistration(resolve_kind("auto"), rng=self._rng)
         self._registration.build(obs.grey, feature_mask, V, mesh.faces, obs.K)
         self._good_V = V
+        self._laid_V = V  # the shape the mesh was laid in (``perception.confidence.material_cap``)
         self._rest_lengths = np.linalg.norm(V[self._edges[:, 0]] - V[self._edges[:, 1]], axis=1)
         self._stretch = StretchTerm(self._edges, self._rest_lengths, n_vertices=len(V))
         self._tethers = Tethers(V, mesh.faces)
@@ -925,8 +927,10 @@ class MeshTracker:
         likeness = 1.0
         if self._appearance is not None:
             likeness = self._appearance.likeness(frame.rgb, V, self.mesh.faces, K, visible)
+        textured = self._appearance is not None and self._appearance.textured
+        cap = 1.0 if self._laid_V is None else material_cap(textured, reshaping(self._laid_V, V))
         assessment = assess(V, self._edges, self._rest_lengths, visible, frame.depth_m, object_mask,
-                            K, self.config.confidence_tol_m, likeness, leak, carried, extent, exposed)
+                            K, self.config.confidence_tol_m, likeness, leak, carried, extent, exposed, cap)
         self.last_assessment = assessment
         return assessment
 

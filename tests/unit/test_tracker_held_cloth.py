@@ -10,7 +10,7 @@ import pytest
 from ipc.messages import CameraInfo, RGBDFrame
 from perception import MeshTracker, TrackerConfig
 from perception.background import differs_from_background, seen_through
-from perception.confidence import FLOOR, assess
+from perception.confidence import FLOOR, RESHAPED_M, UNCONFIRMED_CAP, assess, material_cap, reshaping
 from perception.tracker import TrackingError
 from tests.render import frame_of, grid_surface, plane_points, texture
 
@@ -118,6 +118,35 @@ def test_a_mesh_beside_the_lifted_sheet_is_seen_through_to_the_empty_workspace(t
     assert cues[0].opaque == 1.0 and cues[1].opaque < FLOOR and cues[1].lost(0.4)
     without = assess(aside, edges, rest, np.ones(len(UV), bool), frame.depth_m, on_sheet, CAM.K, 0.03, 1.0)
     assert without.opaque == 1.0  # no empty workspace given, nothing said
+
+
+def test_a_plain_cloth_that_changed_shape_is_not_trusted_for_its_material_points(tex):
+    """A mesh moved or turned as a whole keeps its shape; a sheet lifted by one half does not.
+    On a print the appearance check confirms where the material went; on a plain sheet nothing
+    does, so once the mesh has changed shape the confidence stays under 0.5, though the mesh
+    still lies on the sheet (not lost)."""
+    flat, lifted = hinged(UV, 0), hinged(UV, 8)
+    turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    assert reshaping(flat, flat @ turn.T + [0.1, 0.0, 0.3]) < 1e-9
+    assert reshaping(flat, lifted) > RESHAPED_M
+    assert material_cap(False, 0.04) == UNCONFIRMED_CAP and material_cap(True, 0.04) == 1.0
+    assert material_cap(False, 0.01) == 1.0
+
+    plain = np.full_like(tex, 140)
+    for surface, printed in ((tex, True), (plain, False)):
+        tracker = MeshTracker(TrackerConfig(features="klt", use_boundary=False))
+        first = sheet_on_table(flat, surface, 0)
+        tracker.initialise(first, mask=first.depth_m < TABLE_M - 0.005, background=empty_table())
+        caps, estimates = [], []
+        for k in range(1, 9):
+            estimates.append(tracker.track(sheet_on_table(hinged(UV, k), surface, k)))
+            caps.append(tracker.last_assessment.material_cap)
+        assert caps[0] == 1.0  # 8 degrees: the shape as laid, give or take a centimetre
+        if printed:
+            assert caps == [1.0] * 8 and estimates[-1].confidence > UNCONFIRMED_CAP
+        else:
+            assert caps[-1] == UNCONFIRMED_CAP and estimates[-1].confidence <= UNCONFIRMED_CAP
+            assert not estimates[-1].lost
 
 
 def test_a_held_vertex_follows_the_gripper_where_the_camera_cannot_see_it(tex):
