@@ -63,6 +63,7 @@ import cv2
 import numpy as np
 
 from perception.geometry import pixel_index, project
+from perception.registration import rigid_fit
 
 #: cue value below which an estimate is lost whatever the others say
 FLOOR = 0.25
@@ -104,7 +105,8 @@ class Assessment:
         return float(np.clip(min(product, self.material_cap), 0.0, 1.0))
 
     def lost(self, threshold: float) -> bool:
-        """True when the product is below ``threshold`` or any cue is below ``FLOOR``."""
+        """True when the confidence is below ``threshold`` or any cue is below ``FLOOR`` (the
+        material cap, at ``UNCONFIRMED_CAP``, is above the default threshold and ``FLOOR``)."""
         return self.confidence < threshold or min(asdict(self).values()) < FLOOR
 
     def as_dict(self) -> dict:
@@ -114,10 +116,8 @@ class Assessment:
 def reshaping(rest: np.ndarray, vertices: np.ndarray) -> float:
     """How much ``vertices`` (N, 3) differ in shape from ``rest`` (N, 3), metres: the RMS
     distance between them once ``rest`` is moved rigidly onto ``vertices`` (Kabsch)."""
-    a, b = rest - rest.mean(axis=0), vertices - vertices.mean(axis=0)
-    U, _, Vt = np.linalg.svd(a.T @ b)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    return float(np.sqrt(np.mean(np.sum((a @ (Vt.T @ D @ U.T).T - b) ** 2, axis=1))))
+    R, t = rigid_fit(rest, vertices)
+    return float(np.sqrt(np.mean(np.sum((rest @ R.T + t - vertices) ** 2, axis=1))))
 
 
 def material_cap(textured: bool, reshaped_m: float) -> float:
