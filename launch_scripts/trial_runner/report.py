@@ -114,14 +114,16 @@ def _unfold_summary(records: list[dict], median) -> dict:
     by the measured surface), how many had a true adjacent corner in the camera's sight all
     the same (``tracking.true_adjacent_seen``); and, summed over the trials' lifts and hangs
     up to the second plan (``tracking.honesty``), the frames tracked, those wrong, wrong and
-    confident, and wrong yet not flagged lost in time (``sim.evaluation.handled``)."""
+    confident, wrong yet not flagged lost in time (``sim.evaluation.handled``), and right and
+    confident."""
     def err(key: str, stat: str):
         errors = [(r.get("tracking") or {}).get(key) for r in records]
         return median(e.get(stat) if e else None for e in errors)
 
     declined = [r for r in records if "declined" in (r.get("second_grasp") or {})]
     honesty = [h for h in ((r.get("tracking") or {}).get("honesty") for r in records) if h]
-    frames = {key: sum(h[key] for h in honesty) for key in ("frames", "wrong", "wrong_confident", "wrong_not_lost_after_3")}
+    frames = {key: sum(h.get(key, 0) for h in honesty)
+              for key in ("frames", "wrong", "wrong_confident", "wrong_not_lost_after_3", "right_confident")}
     in_sight = sum(any(((r.get("tracking") or {}).get("true_adjacent_seen") or {}).values()) for r in declined)
     return {"success": _rate(records), "first_grasp_at_corner": _rate(records, "corner_success"),
             "declined": {"trials": len(declined), "true_adjacent_corner_in_sight": in_sight},

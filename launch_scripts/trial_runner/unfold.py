@@ -161,15 +161,17 @@ def _honesty(errors: dict, estimates: dict, seqs: list[int]) -> dict | None:
     """Over the frames ``seqs`` (the lift and the hang, up to the second plan), how many the
     estimate got wrong (mean error over ``sim.evaluation.handled.WRONG_MM``), how many of those
     it reported with confidence ``CONFIDENT`` or more, and how many it had not flagged lost
-    ``LOST_WITHIN`` wrong frames later: issue 11's loss target, on the robot's own lift. None
-    when some of them have no error (the tracker changed its mesh before)."""
+    ``LOST_WITHIN`` wrong frames later: issue 11's loss target, on the robot's own lift; and
+    how many right frames it reported with that confidence (what a stricter confidence costs).
+    None when some of them have no error (the tracker changed its mesh before)."""
     if not seqs or any(s not in errors for s in seqs):
         return None
     wrong = np.array([1000.0 * errors[s].mean() > WRONG_MM for s in seqs], bool)
     confident = np.array([estimates[s].confidence >= CONFIDENT for s in seqs], bool)
     lost = np.array([estimates[s].lost for s in seqs], bool)
     return {"frames": len(seqs), "wrong": int(wrong.sum()), "wrong_confident": int((wrong & confident).sum()),
-            "wrong_not_lost_after_3": int(unflagged_late(wrong, lost).sum())}
+            "wrong_not_lost_after_3": int(unflagged_late(wrong, lost).sum()),
+            "right_confident": int((~wrong & confident).sum())}
 
 
 def _second_plan(scene, link, config, tracking: _Tracking, reference, held_vertex: int, first_hand) -> tuple:

@@ -339,9 +339,9 @@ def test_the_lift_is_scored_for_wrong_frames_reported_with_confidence():
     errors = {s: np.full(10, 0.01 if s < 2 else 0.05) for s in range(8)}
     estimates = {s: SimpleNamespace(confidence=0.9 if s < 6 else 0.2, lost=s >= 6) for s in range(8)}
     assert _honesty(errors, estimates, list(range(8))) == \
-        {"frames": 8, "wrong": 6, "wrong_confident": 4, "wrong_not_lost_after_3": 1}  # frame 5
+        {"frames": 8, "wrong": 6, "wrong_confident": 4, "wrong_not_lost_after_3": 1, "right_confident": 2}  # frame 5
     assert _honesty(errors, estimates, [0, 1]) == {"frames": 2, "wrong": 0, "wrong_confident": 0,
-                                                    "wrong_not_lost_after_3": 0}
+                                                    "wrong_not_lost_after_3": 0, "right_confident": 2}
     # a frame without an error (a mesh built anew) leaves the lift unscored
     assert _honesty(errors, estimates, list(range(9))) is None and _honesty(errors, estimates, []) is None
 
@@ -352,7 +352,7 @@ def test_the_lift_is_scored_for_wrong_frames_reported_with_confidence():
     records[1]["tracking"]["honesty"] = {"frames": 100, "wrong": 10, "wrong_confident": 3, "wrong_not_lost_after_3": 2}
     rep = report(records, "python -m launch_scripts.trials --task unfold", {"kind": "corner"})
     assert rep["summary"]["by_regrasp"]["adjacent"]["lift_and_hang_frames"] == \
-        {"frames": 108, "wrong": 16, "wrong_confident": 7, "wrong_not_lost_after_3": 3}
+        {"frames": 108, "wrong": 16, "wrong_confident": 7, "wrong_not_lost_after_3": 3, "right_confident": 2}
     assert "| 16 / 7 / 3 of 108 |" in markdown(rep)
 
 
