@@ -928,7 +928,9 @@ class MeshTracker:
         if self._appearance is not None:
             likeness = self._appearance.likeness(frame.rgb, V, self.mesh.faces, K, visible)
         textured = self._appearance is not None and self._appearance.textured
-        cap = 1.0 if self._laid_V is None else material_cap(textured, reshaping(self._laid_V, V))
+        # only a plain cloth's cap depends on its change of shape: not measured on a printed one
+        reshaped = 0.0 if textured or self._laid_V is None else reshaping(self._laid_V, V)
+        cap = material_cap(textured, reshaped)
         assessment = assess(V, self._edges, self._rest_lengths, visible, frame.depth_m, object_mask,
                             K, self.config.confidence_tol_m, likeness, leak, carried, extent, exposed, cap)
         self.last_assessment = assessment
