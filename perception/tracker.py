@@ -127,6 +127,12 @@ class _Done:
         return None
 
 
+def _camera_text(camera) -> str:
+    """A camera's size and intrinsics, as a frame-check message names them."""
+    K = camera.K
+    return f"{camera.width}x{camera.height} fx {K[0, 0]:g} fy {K[1, 1]:g} cx {K[0, 2]:g} cy {K[1, 2]:g}"
+
+
 class TrackingError(ValueError):
     """A frame or mask the tracker cannot use; the message names what was wrong."""
 
@@ -376,9 +382,8 @@ class MeshTracker:
         if self._camera is not None:
             c = frame.camera
             if (c.width, c.height) != (self._camera.width, self._camera.height) or not np.allclose(c.K, self._camera.K):
-                raise TrackingError(
-                    f"frame camera changed: initialised on {self._camera.width}x{self._camera.height}, "
-                    f"got {c.width}x{c.height} (re-initialise for a new camera)")
+                raise TrackingError(f"frame camera changed: initialised on {_camera_text(self._camera)}, got "
+                                    f"{_camera_text(c)} (re-initialise for a new camera)")
         held = frame.held_vertices
         if held is not None and held.size and self.mesh is not None and int(held.max()) >= self.mesh.n_vertices:
             raise TrackingError(f"RGBDFrame.held_vertices: vertex {int(held.max())} is not in the tracked mesh "

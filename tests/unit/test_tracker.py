@@ -268,6 +268,11 @@ def test_bad_input_messages(tex):
     other = RGBDFrame(np.zeros((240, 320, 3), np.uint8), np.ones((240, 320), np.float32), small)
     with pytest.raises(TrackingError, match="frame camera changed"):
         tr.track(other)
+    # same size, other intrinsics: the message names what differs
+    refocused = dataclasses.replace(CAM, K=CAM.K @ np.diag([1.1, 1.1, 1.0]))
+    with pytest.raises(TrackingError, match=rf"initialised on 640x480 fx {CAM.K[0, 0]:g} .* got 640x480 fx "
+                                            rf"{1.1 * CAM.K[0, 0]:g}"):
+        tr.track(dataclasses.replace(f0, camera=refocused))
     with pytest.raises(TrackingError, match="expected an RGBDFrame"):
         tr.track("not a frame")
     with pytest.raises(ValueError, match="alpha"):
