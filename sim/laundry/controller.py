@@ -141,25 +141,16 @@ def stretchable_corner(candidates, canonical: np.ndarray, held_vertex: int,
     (a T-shirt's hem, not the side seam that bends under the sleeve), among those one the
     camera saw (``MIN_CORNER_VISIBLE``) and, given where the held point is
     (``held_point_cam`` (3,), metres, the plans' camera frame), among those one the frame
-    confirms (``why_not_confirmed``), and of two it confirms, the one whose measured tip lies
-    nearer the estimate's corner (``tip_offset_m``: where the estimate and the data agree
-    best); the planner's order decides among equals. None when there are no candidates. The
-    caller still checks what it got: the best may be unseen or unconfirmed.
-
-    Why the nearer tip: on the last hanging frames of 27 development unfold trials (even seeds
-    0-58, development script replaying the planner outside the repository), both corners were
-    confirmed in 2: in one the planner's first, its tip 3.3 cm off, was planned 7.9 cm from a
-    true corner and the other (0.6 cm) 0.5 cm; in the other both were right.
+    confirms (``why_not_confirmed``); the planner's order decides among equals. None when
+    there are no candidates. The caller still checks what it got: the best may be unseen or
+    unconfirmed.
     """
     if not candidates:
         return None
-
-    def rank(c: AdjacentCorner) -> tuple:
-        unconfirmed = held_point_cam is None or bool(why_not_confirmed(c, held_point_cam))
-        return (not c.reachable, edge_straightness(c, canonical, held_vertex) < MIN_EDGE_STRAIGHTNESS,
-                c.visible < MIN_CORNER_VISIBLE, unconfirmed, 0.0 if unconfirmed else c.tip_offset_m)
-
-    return min(candidates, key=rank)
+    return min(candidates, key=lambda c: (not c.reachable,
+                                          edge_straightness(c, canonical, held_vertex) < MIN_EDGE_STRAIGHTNESS,
+                                          c.visible < MIN_CORNER_VISIBLE,
+                                          held_point_cam is not None and bool(why_not_confirmed(c, held_point_cam))))
 
 
 #: Corner plans scoring within this of the planner's best are equally good grasps (a cloth

@@ -172,10 +172,6 @@ def test_a_corner_is_grasped_only_where_the_measured_why_not_confirmed_it():
     assert stretchable_corner((first, confirmed(second)), est.canonical, held).plan is first.plan  # held point unknown
     plan, _, vertex, details = _second_plan_on(est, held, (first, confirmed(second, 0.02)))
     assert plan is second.plan and details["tip_offset_m"] == 0.02
-    # both confirmed: the one whose measured tip lies nearer the estimate's corner, whichever is ranked first
-    for near, far in ((first, second), (second, first)):
-        chosen = stretchable_corner((confirmed(far, 0.04), confirmed(near, 0.005)), est.canonical, held, held_at)
-        assert chosen.plan is near.plan and chosen.tip_offset_m == 0.005
     plan, distance, vertex, details = _second_plan_on(est, held, (far_tip, second))
     assert plan is None and distance is None and vertex == -1
     assert details["reason"] == (f"adjacent corner not confirmed by the measured surface (the measured tip lies "
