@@ -88,24 +88,14 @@ def _steps_all_round(patches: np.ndarray, n: int, depth: np.ndarray, cloth: np.n
     return (np.bincount(label, minlength=n + 1), np.bincount(label, weights=stepped, minlength=n + 1))
 
 
-def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray,
-                       near_m: float, known: np.ndarray | None = None, before: np.ndarray | None = None,
-                       min_px: int = 40) -> np.ndarray | None:
-    """(H, W) bool: objects in front of the cloth that the predicted mesh ``vertices``
-    (N, 3), ``faces`` (M, 3) does not explain (see the module docstring); None when there is
-    none.
-
-    depth_m : (H, W) float32 metres; K : (3, 3) intrinsics
-    near_m : how much nearer than the predicted mesh a surface must be, and how far it must
-        stand out from the cloth around it (a step all round), to be taken for an object in
-        front; more than the sensor's noise, less than the nearest such object is expected
-    known : (H, W) bool, the known occluders (not looked for again, and not cloth), or None
-    before : (H, W) bool, what this returned for the frame before, or None. A patch that is
-        mostly that object, moved (half of it within ``FAR_RING_PX`` of it, and not grown to
-        more than ``GROWN`` times its size there), needs the step on only ``STILL_ROUND`` of
-        the cloth around it
-    min_px : smaller patches (pixels) are left alone
-    """
+def _nearer_view(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, near_m: float,
+                 known: np.ndarray | None):
+    """Where to look for something nearer than the predicted mesh by ``near_m``: None when it
+    covers fewer than two vertices; else the box (y0, y1, x0, x1) around the vertices it
+    covers, grown by a face and ``FAR_RING_PX`` (the object lies within a face of them, and
+    the cloth it is judged against within that ring), and, at every ``STEP_PX``-th pixel of
+    it: the measured depth (0 where none), the predicted mesh's depth, and where the mesh is
+    predicted with depth measured, off the ``known`` occluders."""
     h, w = depth_m.shape
     uv = project(vertices, K)
     cols, rows, inside = pixel_index(uv, w, h)
@@ -114,8 +104,6 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
     covered = inside & valid_depth(d) & (d < vertices[:, 2] - near_m)
     if np.count_nonzero(covered) < 2:
         return None
-    # The object lies within a face of the vertices it covers, and the cloth it is judged
-    # against within FAR_RING_PX beyond: work in that box, on every STEP_PX-th pixel.
     edges = np.linalg.norm(uv[faces[:, 0]] - uv[faces[:, 1]], axis=1)
     edges = edges[np.isfinite(edges)]  # a vertex behind the camera projects nowhere
     if not len(edges):
@@ -139,6 +127,42 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
     on_mesh = valid & (z > 0)
     if known is not None:
         on_mesh &= ~known[y0:y1:STEP_PX, x0:x1:STEP_PX]
+    return (y0, y1, x0, x1), depth, z, on_mesh
+
+
+def _full_size(found: np.ndarray, box, shape) -> np.ndarray:
+    """(H, W) bool of ``found`` (the box read at every ``STEP_PX``-th pixel), grown by a pixel
+    or two: an object's own edge pixels, mixed with the cloth behind them."""
+    y0, y1, x0, x1 = box
+    grown = cv2.dilate(found.view(np.uint8), np.ones((3, 3), np.uint8))
+    out = np.zeros(shape, bool)
+    out[y0:y1, x0:x1] = np.repeat(np.repeat(grown, STEP_PX, axis=0), STEP_PX, axis=1)[:y1 - y0, :x1 - x0].view(bool)
+    return out
+
+
+def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray,
+                       near_m: float, known: np.ndarray | None = None, before: np.ndarray | None = None,
+                       min_px: int = 40) -> np.ndarray | None:
+    """(H, W) bool: objects in front of the cloth that the predicted mesh ``vertices``
+    (N, 3), ``faces`` (M, 3) does not explain (see the module docstring); None when there is
+    none.
+
+    depth_m : (H, W) float32 metres; K : (3, 3) intrinsics
+    near_m : how much nearer than the predicted mesh a surface must be, and how far it must
+        stand out from the cloth around it (a step all round), to be taken for an object in
+        front; more than the sensor's noise, less than the nearest such object is expected
+    known : (H, W) bool, the known occluders (not looked for again, and not cloth), or None
+    before : (H, W) bool, what this returned for the frame before, or None. A patch that is
+        mostly that object, moved (half of it within ``FAR_RING_PX`` of it, and not grown to
+        more than ``GROWN`` times its size there), needs the step on only ``STILL_ROUND`` of
+        the cloth around it
+    min_px : smaller patches (pixels) are left alone
+    """
+    view = _nearer_view(depth_m, vertices, faces, K, near_m, known)
+    if view is None:
+        return None
+    (y0, y1, x0, x1), depth, z, on_mesh = view
+    h, w = depth_m.shape
     offset = np.where(on_mesh, depth - z, 0.0)
     nearer = cv2.morphologyEx((on_mesh & (offset < -near_m)).view(np.uint8), cv2.MORPH_OPEN,
                               np.ones((3, 3), np.uint8)).view(bool)
@@ -167,8 +191,60 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
     front[0] = False
     if not front.any():
         return None
-    # Grown by a pixel or two: the object's own edge pixels, mixed with the cloth behind.
-    found = cv2.dilate(front[patches].view(np.uint8), np.ones((3, 3), np.uint8))
-    out = np.zeros((h, w), bool)
-    out[y0:y1, x0:x1] = np.repeat(np.repeat(found, STEP_PX, axis=0), STEP_PX, axis=1)[:y1 - y0, :x1 - x0].view(bool)
-    return out
+    return _full_size(front[patches], (y0, y1, x0, x1), (h, w))
+
+
+#: How much nearer than the predicted mesh a surface of a colour the object does not have
+#: must be to be taken for an object in front (``unlike_in_front``): more than the depth noise
+#: of a structured-light sensor at 1-2 m and a mesh's few millimetres off its cloth.
+UNLIKE_NEAR_M = 0.01
+#: Once found, such a surface is found again while it stays nearer than the mesh by this much
+#: (metres): the mesh behind it drifts towards it a little, but a hand beside the cloth at the
+#: cloth's own depth is not in front of it.
+STILL_NEARER_M = 0.003
+
+
+def unlike_in_front(depth_m: np.ndarray, rgb: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray,
+                    probability, near_m: float = UNLIKE_NEAR_M, known: np.ndarray | None = None,
+                    before: np.ndarray | None = None, min_px: int = 40) -> np.ndarray | None:
+    """(H, W) bool: surfaces nearer than the predicted mesh whose colour the object does not
+    have; None when there is none.
+
+    ``occluders_in_front`` needs a step all round of its ``near_m`` (3 cm by default) to tell
+    an object from a part of the cloth running ahead of the mesh, and misses a hand or a bar
+    closer to the cloth than that: the colour step of the segmentation then leaves its pixels
+    out of the object while the vertices behind it count as seen, and the boundary term pulls
+    them off it, so that the mesh is pushed along ahead of it (on a real recording, a bar
+    2 cm in front of a foam tube pushed the mesh off most of the tube:
+    ``benchmarks/real_faults.py``). Where the object's colour tells it from its surroundings,
+    a surface nearer than the mesh that is not of the object's colour is something else in
+    front, however close: cloth running ahead of the mesh is of the cloth's colour, and what
+    the cloth uncovers (a table) lies behind it.
+
+    Found as regions of the other colour over the mesh, not behind it (within ``near_m``),
+    that hold pixels nearer than it by ``near_m`` or more, or that overlap ``before``: once
+    found, an object keeps being found though the mesh behind it drifts towards it (at its
+    rim, depth pulls the vertices it half covers a few millimetres towards it, and the
+    prediction carries that on).
+
+    rgb : (H, W, 3) uint8; probability : callable taking an (h, w, 3) uint8 image to (h, w)
+        probabilities that each pixel is the object (``ColourModel.probability``; a colour
+        under 0.5 is not the object's); before : (H, W) bool, what this returned for the
+        frame before, or None; the others as ``occluders_in_front``
+    """
+    view = _nearer_view(depth_m, vertices, faces, K, near_m if before is None else STILL_NEARER_M, known)
+    if view is None:
+        return None
+    (y0, y1, x0, x1), depth, z, on_mesh = view
+    unlike = probability(rgb[y0:y1, x0:x1])[::STEP_PX, ::STEP_PX] < 0.5
+    over = cv2.morphologyEx((on_mesh & unlike & (depth < z - STILL_NEARER_M)).view(np.uint8), cv2.MORPH_OPEN,
+                            np.ones((3, 3), np.uint8))
+    n, regions, stats, _ = cv2.connectedComponentsWithStats(over, connectivity=8)
+    seeds = on_mesh & (depth < z - near_m)
+    if before is not None:
+        seeds |= before[y0:y1:STEP_PX, x0:x1:STEP_PX]
+    keep = (np.bincount(regions[seeds], minlength=n) > 0) & (stats[:, cv2.CC_STAT_AREA] >= min_px / STEP_PX**2)
+    keep[0] = False
+    if not keep.any():
+        return None
+    return _full_size(keep[regions], (y0, y1, x0, x1), depth_m.shape)

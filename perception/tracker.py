@@ -70,7 +70,7 @@ from perception.geometry import Undistorter, face_areas, face_normals, pixel_ind
 from perception.initial_mesh import InitialisationError, mesh_from_mask, object_area_m2, place_mesh, spacing_for
 from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
-from perception.occluders import occluders_in_front
+from perception.occluders import occluders_in_front, unlike_in_front
 from perception.raster import faces_mask
 from perception.registration import GlobalRegistration
 from perception.segmentation import (
@@ -330,7 +330,8 @@ class MeshTracker:
         self._edges = None
         self._visible = None  # (N,) bool, the vertices seen in the last frame
         self._laid_V = None
-        self._unknown_occluder = None  # (H, W) bool, the objects in front found in the last frame
+        self._unknown_occluder = None  # (H, W) bool, the objects in front found in the last frame by their step
+        self._unlike_occluder = None  # (H, W) bool, and by their colour
         self._memory = FrameMemory()
         self.coarse_corrections = 0  # frames predicted otherwise than by constant velocity
         self.last_motion_scores: dict = {}
@@ -822,18 +823,26 @@ class MeshTracker:
 
     def _with_unknown_occluders(self, frame: RGBDFrame, V: np.ndarray) -> RGBDFrame:
         """``frame`` with the objects in front of the mesh ``V`` (N, 3) that nobody announced
-        (``perception.occluders``) added to its occluder mask."""
+        (``perception.occluders``: standing out from the cloth by a step all round, or, where
+        the object's colour tells it from its surroundings, nearer and of another colour)
+        added to its occluder mask."""
         near = self.config.unknown_occluder_m
         if near <= 0:
             return frame
-        front = occluders_in_front(frame.depth_m, V, self.mesh.faces, frame.camera.K, near, frame.occluder_mask,
-                                   self._unknown_occluder)
-        self._unknown_occluder = front
-        if front is None:
+        K, faces = frame.camera.K, self.mesh.faces
+        stepped = occluders_in_front(frame.depth_m, V, faces, K, near, frame.occluder_mask, self._unknown_occluder)
+        self._unknown_occluder = stepped
+        masks = [m for m in (frame.occluder_mask, stepped) if m is not None]
+        if self._colour is not None and self._colour.informative:
+            known = np.logical_or.reduce(masks) if masks else None
+            unlike = unlike_in_front(frame.depth_m, frame.rgb, V, faces, K, self._colour.probability, known=known,
+                                     before=self._unlike_occluder)
+            self._unlike_occluder = unlike
+            if unlike is not None:
+                masks.append(unlike)
+        if len(masks) == (frame.occluder_mask is not None):  # nothing found
             return frame
-        if frame.occluder_mask is not None:
-            front = front | frame.occluder_mask
-        return replace(frame, occluder_mask=front)
+        return replace(frame, occluder_mask=np.logical_or.reduce(masks))
 
     def _solve_frame(self, frame, V_pred, pred_mask, grey, prepared, t0) -> MeshEstimate:
         cfg = self.config

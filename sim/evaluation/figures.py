@@ -46,13 +46,16 @@ def error_over_time(path: Path, title: str, series: dict[str, np.ndarray], fps: 
 
 
 def error_with_occlusion(path: Path, title: str, runs: dict[str, dict], hidden_s: np.ndarray,
-                         hidden_fraction: np.ndarray, wrong_mm: float, confident: float) -> None:
+                         hidden_fraction: np.ndarray, wrong_mm: float, confident: float,
+                         shaded: str | None = None, error_label: str = "mean vertex error (mm)") -> None:
     """Error and confidence over time, with the occluder's passage shaded.
 
     runs : label -> {"time_s": (T,), "mean_mm": (T,), "confidence": (T,), "lost": (T,) bool}
     hidden_s, hidden_fraction : (S,) times and the fraction of the true cloth hidden by the
         occluder then, drawn as a grey band on both panels (darker = more hidden)
     wrong_mm, confident : the thresholds of a wrong and of a confident estimate, as dashed lines
+    shaded, error_label : what the grey band (None: the cloth hidden, by how much at most) and
+        the error axis show, for the axes' labels
     """
     fig = Figure(figsize=(7.5, 5.2))
     ax_err, ax_conf = fig.subplots(2, 1, sharex=True, height_ratios=(3, 2))
@@ -71,12 +74,13 @@ def error_with_occlusion(path: Path, title: str, runs: dict[str, dict], hidden_s
             ax_err.plot(t[lost], err[lost], "x", color=colour, ms=5)
     ax_err.axhline(wrong_mm, color="k", linestyle="--", lw=0.8)
     ax_conf.axhline(confident, color="k", linestyle="--", lw=0.8)
-    ax_err.set_ylabel("mean vertex error (mm)")
+    ax_err.set_ylabel(error_label)
     ax_err.set_yscale("symlog", linthresh=10.0)
     ax_err.set_ylim(bottom=0.0)
     ax_conf.set_ylabel("confidence")
     ax_conf.set_ylim(-0.02, 1.02)
-    ax_conf.set_xlabel(f"time (s); shaded: cloth hidden by the occluder (up to {100 * peak:.0f} %); x: flagged lost")
+    shaded = shaded or f"cloth hidden by the occluder (up to {100 * peak:.0f} %)"
+    ax_conf.set_xlabel(f"time (s); shaded: {shaded}; x: flagged lost")
     ax_err.set_title(title, fontsize=10)
     for ax in (ax_err, ax_conf):
         ax.grid(alpha=0.3)
