@@ -199,7 +199,10 @@ def _table(results: dict) -> str:
     return "\n".join(rows)
 
 
-def _strip(frames_by_index: dict, estimates: dict, picks: list[int], box, K, label: str) -> np.ndarray:
+def _strip(frames_by_index: dict, estimates: dict, picks: list[int], box, K, label: str,
+           width: int = 1600) -> np.ndarray:
+    """The mesh over the frames ``picks``, cropped round the object's box, side by side,
+    scaled down to at most ``width`` pixels."""
     y0, y1, x0, x1 = box
     pad = max(y1 - y0, x1 - x0) // 4
     tiles = []
@@ -208,9 +211,11 @@ def _strip(frames_by_index: dict, estimates: dict, picks: list[int], box, K, lab
         image = draw_mesh(frame.rgb, estimates[i], K) if i in estimates else frame.rgb.copy()
         h, w = image.shape[:2]
         tile = np.ascontiguousarray(image[max(0, y0 - pad):min(h, y1 + pad), max(0, x0 - pad):min(w, x1 + pad)])
-        outlined_text(tile, f"{label} #{i}", (5, 18), 0.5)
+        outlined_text(tile, f"{label}, frame {i}", (5, tile.shape[0] - 8), 0.5)
         tiles.append(tile)
-    return np.hstack(tiles)
+    strip = np.hstack(tiles)
+    scale = min(1.0, width / strip.shape[1])
+    return cv2.resize(strip, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale < 1.0 else strip
 
 
 def main(argv=None) -> int:

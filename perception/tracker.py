@@ -179,7 +179,9 @@ class TrackerConfig:
     unknown_occluder_m : a surface this much nearer than the predicted mesh, standing out from
         the cloth around it by as much all round, is taken for an object in front of the cloth
         (a hand on it, a tool) and treated as a known occluder, though no occluder mask names
-        it (``perception.occluders``); 0 switches this off
+        it (``perception.occluders``); so is, where the object's colour tells it from its
+        surroundings, a surface nearer than the mesh by ``occluders.UNLIKE_NEAR_M`` or more and
+        not of the object's colour, however close; 0 switches both off
     lambda_m : weight of the motion prior that carries hidden and unobserved vertices
     lambda_l : weight of the stretch term that keeps the mesh's edge lengths (0: the paper's
         energy, whose smoothness lets a mesh shrink onto the part of the object still seen)
