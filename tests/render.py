@@ -102,3 +102,22 @@ def with_occluder(frame: RGBDFrame, region: np.ndarray, depth_m: float, rng: np.
         depth[grown & ~region] = 0.0
     depth[region] = depth_m
     return RGBDFrame(rgb, depth, frame.camera, frame.timestamp_s, frame.seq, occluder_mask=region if known else None)
+
+
+def write_sheet_recording(folder, camera: CameraInfo, n_frames: int, step_m: float, size_m=(0.6, 0.45)) -> None:
+    """A converted recording in ``folder``: a textured sheet 1.3 m away drifting ``step_m`` to
+    the right each frame, with its true footprint as each frame's reference mask."""
+    from perception.geometry import project
+    from perception.raster import faces_mask
+    from perception.recordings import write_reference_masks
+    from perception.sequence import SequenceWriter, open_sequence
+
+    uv, faces = grid_surface(*size_m, 21, 16)
+    tex = texture(np.random.default_rng(3))
+    footprints = {}
+    with SequenceWriter(folder, camera, depth_scale=1000.0) as w:
+        for k in range(n_frames):
+            pts = plane_points(uv, np.array([step_m * k, 0, 1.3]), size_m)
+            w.write(frame_of(pts, uv, faces, tex, camera, size_m, t=k / 30, seq=k))
+            footprints[k] = faces_mask(project(pts, camera.K), faces, (camera.height, camera.width))
+    write_reference_masks(open_sequence(folder), footprints, {k: "true footprint" for k in footprints})

@@ -9,12 +9,8 @@ import numpy as np
 import pytest
 
 from ipc.messages import CameraInfo
-from perception.geometry import project
-from perception.raster import faces_mask
-from perception.recordings import write_reference_masks
-from perception.sequence import SequenceWriter, open_sequence
 from perception.tracker import TrackerConfig
-from tests.render import frame_of, grid_surface, plane_points, texture
+from tests.render import write_sheet_recording
 
 spec = importlib.util.spec_from_file_location(
     "real_recordings", Path(__file__).resolve().parents[2] / "benchmarks" / "real_recordings.py")
@@ -22,21 +18,12 @@ bench = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(bench)
 
 CAM = CameraInfo.from_fov(320, 240, np.deg2rad(45))
-SIZE = (0.6, 0.45)
-UV, FACES = grid_surface(*SIZE, 21, 16)
 
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     root = tmp_path_factory.mktemp("data")
-    tex = texture(np.random.default_rng(3))
-    footprints = {}
-    with SequenceWriter(root / "sheet", CAM, depth_scale=1000.0) as w:
-        for k in range(4):
-            pts = plane_points(UV, np.array([0.01 * k, 0, 1.3]), SIZE)
-            w.write(frame_of(pts, UV, FACES, tex, CAM, SIZE, t=k / 30, seq=k))
-            footprints[k] = faces_mask(project(pts, CAM.K), FACES, (CAM.height, CAM.width))
-    write_reference_masks(open_sequence(root / "sheet"), footprints, {k: "true footprint" for k in footprints})
+    write_sheet_recording(root / "sheet", CAM, 4, 0.01)
     return root
 
 

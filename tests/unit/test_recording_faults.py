@@ -11,12 +11,9 @@ import numpy as np
 import pytest
 
 from ipc.messages import CameraInfo, RGBDFrame
-from perception.geometry import project
-from perception.raster import faces_mask
 from perception.recording_faults import ARM_RGB, bar_in_front, cut_to, depth_holes, no_depth
-from perception.recordings import write_reference_masks
-from perception.sequence import SequenceWriter, open_sequence
-from tests.render import frame_of, grid_surface, plane_points, texture
+from perception.sequence import SequenceWriter
+from tests.render import frame_of, grid_surface, plane_points, texture, write_sheet_recording
 
 spec = importlib.util.spec_from_file_location(
     "real_faults", Path(__file__).resolve().parents[2] / "benchmarks" / "real_faults.py")
@@ -24,8 +21,6 @@ bench = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(bench)
 
 CAM = CameraInfo.from_fov(320, 240, np.deg2rad(45))
-SIZE = (0.6, 0.45)
-UV, FACES = grid_surface(*SIZE, 21, 16)
 BOX = (60, 180, 100, 220)  # y0, y1, x0, x1
 
 
@@ -106,14 +101,7 @@ def test_no_depth_and_a_cut_keep_the_frames_time_and_camera():
 @pytest.fixture(scope="module")
 def data(tmp_path_factory):
     root = tmp_path_factory.mktemp("data")
-    tex = texture(np.random.default_rng(3))
-    footprints = {}
-    with SequenceWriter(root / "sheet", CAM, depth_scale=1000.0) as w:
-        for k in range(16):
-            pts = plane_points(UV, np.array([0.004 * k, 0, 1.3]), SIZE)
-            w.write(frame_of(pts, UV, FACES, tex, CAM, SIZE, t=k / 30, seq=k))
-            footprints[k] = faces_mask(project(pts, CAM.K), FACES, (CAM.height, CAM.width))
-    write_reference_masks(open_sequence(root / "sheet"), footprints, {k: "true footprint" for k in footprints})
+    write_sheet_recording(root / "sheet", CAM, 16, 0.004)
     wall_uv, wall_faces = grid_surface(3.0, 2.4, 4, 4)
     with SequenceWriter(root / "wall", CAM, depth_scale=1000.0) as w:
         for k in range(2):
