@@ -221,11 +221,11 @@ def unlike_in_front(depth_m: np.ndarray, rgb: np.ndarray, vertices: np.ndarray, 
     front, however close: cloth running ahead of the mesh is of the cloth's colour, and what
     the cloth uncovers (a table) lies behind it.
 
-    Found as regions of the other colour over the mesh, not behind it (within ``near_m``),
-    that hold pixels nearer than it by ``near_m`` or more, or that overlap ``before``: once
-    found, an object keeps being found though the mesh behind it drifts towards it (at its
-    rim, depth pulls the vertices it half covers a few millimetres towards it, and the
-    prediction carries that on).
+    Found as regions of the other colour over the mesh and nearer than it by
+    ``STILL_NEARER_M``, that hold pixels nearer by ``near_m`` or more, or that overlap
+    ``before``: once found, an object keeps being found though the mesh behind it drifts
+    towards it (at its rim, depth pulls the vertices it half covers a few millimetres towards
+    it, and the prediction carries that on).
 
     rgb : (H, W, 3) uint8; probability : callable taking an (h, w, 3) uint8 image to (h, w)
         probabilities that each pixel is the object (``ColourModel.probability``; a colour
