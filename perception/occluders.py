@@ -17,7 +17,10 @@ where the mesh was predicted, and is left alone too.
 
 What it misses: an object whose rim slopes down into the cloth (a rounded hand lying flat
 on it, fingertips) meets the cloth without a step and is taken for cloth, as before; so is
-anything nearer than the predicted mesh by less than ``near_m``. The threshold is in metres
+anything nearer than the predicted mesh by less than ``near_m``, unless its colour gives it
+away: where the object's colour tells it from its surroundings, ``unlike_in_front`` takes a
+surface nearer than the mesh and not of the object's colour for something in front however
+close (a centimetre or more). The threshold is in metres
 whatever the depth: a sensor whose noise at the cloth's distance approaches it (a stereo
 camera at 2-3 m) wants a larger one. A flap folded over whose crease the sensor does not
 measure steps down all round, and is taken for an object in front.
