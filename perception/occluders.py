@@ -202,16 +202,20 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
 #: of a structured-light sensor at 1-2 m and a mesh's few millimetres off its cloth.
 UNLIKE_NEAR_M = 0.01
 #: Once found, such a surface is found again while it stays nearer than the mesh by this much
-#: (metres): the mesh behind it drifts towards it a little, but a hand beside the cloth at the
-#: cloth's own depth is not in front of it.
+#: (metres): the mesh behind it drifts towards it a little.
 STILL_NEARER_M = 0.003
+#: Share of the pixels of the object's colour around such a surface that must lie farther than
+#: it by ``UNLIKE_NEAR_M``: more than half, where a patch of the table a lifted cloth bares
+#: under a lagging mesh has none (the cloth around it is nearer), and fewer than
+#: ``ALL_ROUND`` since the ring takes in the shaded rim of the object itself.
+UNLIKE_ROUND = 0.6
 
 
 def unlike_in_front(depth_m: np.ndarray, rgb: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray,
                     probability, near_m: float = UNLIKE_NEAR_M, known: np.ndarray | None = None,
                     before: np.ndarray | None = None, min_px: int = 40) -> np.ndarray | None:
-    """(H, W) bool: surfaces nearer than the predicted mesh whose colour the object does not
-    have; None when there is none.
+    """(H, W) bool: surfaces nearer than the predicted mesh, not of the object's colour, and
+    nearer than the object's colour around them; None when there is none.
 
     ``occluders_in_front`` needs a step all round of its ``near_m`` (3 cm by default) to tell
     an object from a part of the cloth running ahead of the mesh, and misses a hand or a bar
@@ -220,15 +224,17 @@ def unlike_in_front(depth_m: np.ndarray, rgb: np.ndarray, vertices: np.ndarray, 
     them off it, so that the mesh is pushed along ahead of it (on a real recording, a bar
     2 cm in front of a foam tube pushed the mesh off most of the tube:
     ``benchmarks/real_faults.py``). Where the object's colour tells it from its surroundings,
-    a surface nearer than the mesh that is not of the object's colour is something else in
-    front, however close: cloth running ahead of the mesh is of the cloth's colour, and what
-    the cloth uncovers (a table) lies behind it.
+    the step can be judged against the object's colour alone, and so a smaller one: a part of
+    the cloth running ahead of the mesh is of the cloth's colour, and a table that a lifted
+    cloth bares under a lagging mesh (nearer than the mesh where the mesh sank into it) lies
+    lower than the cloth around it, not higher.
 
-    Found as regions of the other colour over the mesh and nearer than it by
-    ``STILL_NEARER_M``, that hold pixels nearer by ``near_m`` or more, or that overlap
-    ``before``: once found, an object keeps being found though the mesh behind it drifts
-    towards it (at its rim, depth pulls the vertices it half covers a few millimetres towards
-    it, and the prediction carries that on).
+    Found as patches of the other colour over the mesh and nearer than it by
+    ``STILL_NEARER_M``, with pixels nearer by ``near_m`` or more (or, for a patch that is
+    mostly what this returned for the frame before, ``before``, none: the mesh behind an
+    object drifts towards it a little, at its rim), where ``UNLIKE_ROUND`` of the pixels of the
+    object's colour within ``FAR_RING_PX`` of the patch (``STILL_ROUND`` for one found before)
+    lie farther than it by more than ``near_m``.
 
     rgb : (H, W, 3) uint8; probability : callable taking an (h, w, 3) uint8 image to (h, w)
         probabilities that each pixel is the object (``ColourModel.probability``; a colour
@@ -242,12 +248,21 @@ def unlike_in_front(depth_m: np.ndarray, rgb: np.ndarray, vertices: np.ndarray, 
     unlike = probability(rgb[y0:y1, x0:x1])[::STEP_PX, ::STEP_PX] < 0.5
     over = cv2.morphologyEx((on_mesh & unlike & (depth < z - STILL_NEARER_M)).view(np.uint8), cv2.MORPH_OPEN,
                             np.ones((3, 3), np.uint8))
-    n, regions, stats, _ = cv2.connectedComponentsWithStats(over, connectivity=8)
-    seeds = on_mesh & (depth < z - near_m)
+    n, patches, stats, _ = cv2.connectedComponentsWithStats(over, connectivity=8)
+    area = stats[:, cv2.CC_STAT_AREA]
+    patches[(area < min_px / STEP_PX**2)[patches]] = 0
+    seeded = np.bincount(patches[on_mesh & (depth < z - near_m)], minlength=n) > 0
+    again = np.zeros(n, bool)
     if before is not None:
-        seeds |= before[y0:y1:STEP_PX, x0:x1:STEP_PX]
-    keep = (np.bincount(regions[seeds], minlength=n) > 0) & (stats[:, cv2.CC_STAT_AREA] >= min_px / STEP_PX**2)
-    keep[0] = False
-    if not keep.any():
+        again = np.bincount(patches[before[y0:y1:STEP_PX, x0:x1:STEP_PX]], minlength=n) >= 0.5 * area
+    # Judged on the object's colour within FAR_RING_PX of the patch: right at an object's rim
+    # its colour blurs and darkens into a shade the object's colour model may take for its own.
+    like = valid_depth(depth) & ~unlike
+    seen, stepped = _steps_all_round(patches, n - 1, depth, like, FAR_RING_PX // STEP_PX, near_m)
+    least = MIN_RING_PX / STEP_PX
+    share = np.where(again, STILL_ROUND, UNLIKE_ROUND)
+    front = (seeded | again) & (seen >= least) & (stepped >= share * np.maximum(seen, 1))
+    front[0] = False
+    if not front.any():
         return None
-    return _full_size(keep[regions], (y0, y1, x0, x1), depth_m.shape)
+    return _full_size(front[patches], (y0, y1, x0, x1), depth_m.shape)

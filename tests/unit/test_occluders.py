@@ -164,6 +164,15 @@ def test_the_object_s_own_colour_or_a_surface_behind_is_not_taken_for_something_
     depth[ahead] = Z - 0.02
     rgb, probability = _colours(depth, ahead)  # known already: not looked for again
     assert unlike_in_front(depth, rgb, *sheet, K, probability, known=ahead) is None
+    # A table bared by a lifted cloth under a mesh that lags 2 cm behind the surface: nearer
+    # than the mesh, not of the cloth's colour, but lower than the cloth around it.
+    vertices, faces = sheet
+    depth = flat()
+    depth[bared] = Z + 0.005
+    rgb, probability = _colours(depth, bared)
+    assert unlike_in_front(depth, rgb, vertices + [0.0, 0.0, 0.02], faces, K, probability) is None
+    depth[bared] = Z - 0.015  # the same patch standing out of the cloth instead: something in front
+    assert unlike_in_front(depth, rgb, vertices + [0.0, 0.0, 0.02], faces, K, probability) is not None
 
 
 def test_an_object_of_another_colour_found_before_is_found_though_the_mesh_drifted_to_it(sheet):
