@@ -17,10 +17,7 @@ where the mesh was predicted, and is left alone too.
 
 What it misses: an object whose rim slopes down into the cloth (a rounded hand lying flat
 on it, fingertips) meets the cloth without a step and is taken for cloth, as before; so is
-anything nearer than the predicted mesh by less than ``near_m``, unless its colour gives it
-away: where the object's colour tells it from its surroundings, ``unlike_in_front`` takes a
-surface nearer than the mesh and not of the object's colour for something in front however
-close (a centimetre or more). The threshold is in metres
+anything nearer than the predicted mesh by less than ``near_m``. The threshold is in metres
 whatever the depth: a sensor whose noise at the cloth's distance approaches it (a stereo
 camera at 2-3 m) wants a larger one. A flap folded over whose crease the sensor does not
 measure steps down all round, and is taken for an object in front.
@@ -91,14 +88,24 @@ def _steps_all_round(patches: np.ndarray, n: int, depth: np.ndarray, cloth: np.n
     return (np.bincount(label, minlength=n + 1), np.bincount(label, weights=stepped, minlength=n + 1))
 
 
-def _nearer_view(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray, near_m: float,
-                 known: np.ndarray | None):
-    """Where to look for something nearer than the predicted mesh by ``near_m``: None when it
-    covers fewer than two vertices; else the box (y0, y1, x0, x1) around the vertices it
-    covers, grown by a face and ``FAR_RING_PX`` (the object lies within a face of them, and
-    the cloth it is judged against within that ring), and, at every ``STEP_PX``-th pixel of
-    it: the measured depth (0 where none), the predicted mesh's depth, and where the mesh is
-    predicted with depth measured, off the ``known`` occluders."""
+def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray,
+                       near_m: float, known: np.ndarray | None = None, before: np.ndarray | None = None,
+                       min_px: int = 40) -> np.ndarray | None:
+    """(H, W) bool: objects in front of the cloth that the predicted mesh ``vertices``
+    (N, 3), ``faces`` (M, 3) does not explain (see the module docstring); None when there is
+    none.
+
+    depth_m : (H, W) float32 metres; K : (3, 3) intrinsics
+    near_m : how much nearer than the predicted mesh a surface must be, and how far it must
+        stand out from the cloth around it (a step all round), to be taken for an object in
+        front; more than the sensor's noise, less than the nearest such object is expected
+    known : (H, W) bool, the known occluders (not looked for again, and not cloth), or None
+    before : (H, W) bool, what this returned for the frame before, or None. A patch that is
+        mostly that object, moved (half of it within ``FAR_RING_PX`` of it, and not grown to
+        more than ``GROWN`` times its size there), needs the step on only ``STILL_ROUND`` of
+        the cloth around it
+    min_px : smaller patches (pixels) are left alone
+    """
     h, w = depth_m.shape
     uv = project(vertices, K)
     cols, rows, inside = pixel_index(uv, w, h)
@@ -107,6 +114,8 @@ def _nearer_view(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K
     covered = inside & valid_depth(d) & (d < vertices[:, 2] - near_m)
     if np.count_nonzero(covered) < 2:
         return None
+    # The object lies within a face of the vertices it covers, and the cloth it is judged
+    # against within FAR_RING_PX beyond: work in that box, on every STEP_PX-th pixel.
     edges = np.linalg.norm(uv[faces[:, 0]] - uv[faces[:, 1]], axis=1)
     edges = edges[np.isfinite(edges)]  # a vertex behind the camera projects nowhere
     if not len(edges):
@@ -130,42 +139,6 @@ def _nearer_view(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K
     on_mesh = valid & (z > 0)
     if known is not None:
         on_mesh &= ~known[y0:y1:STEP_PX, x0:x1:STEP_PX]
-    return (y0, y1, x0, x1), depth, z, on_mesh
-
-
-def _full_size(found: np.ndarray, box, shape) -> np.ndarray:
-    """(H, W) bool of ``found`` (the box read at every ``STEP_PX``-th pixel), grown by a pixel
-    or two: an object's own edge pixels, mixed with the cloth behind them."""
-    y0, y1, x0, x1 = box
-    grown = cv2.dilate(found.view(np.uint8), np.ones((3, 3), np.uint8))
-    out = np.zeros(shape, bool)
-    out[y0:y1, x0:x1] = np.repeat(np.repeat(grown, STEP_PX, axis=0), STEP_PX, axis=1)[:y1 - y0, :x1 - x0].view(bool)
-    return out
-
-
-def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray,
-                       near_m: float, known: np.ndarray | None = None, before: np.ndarray | None = None,
-                       min_px: int = 40) -> np.ndarray | None:
-    """(H, W) bool: objects in front of the cloth that the predicted mesh ``vertices``
-    (N, 3), ``faces`` (M, 3) does not explain (see the module docstring); None when there is
-    none.
-
-    depth_m : (H, W) float32 metres; K : (3, 3) intrinsics
-    near_m : how much nearer than the predicted mesh a surface must be, and how far it must
-        stand out from the cloth around it (a step all round), to be taken for an object in
-        front; more than the sensor's noise, less than the nearest such object is expected
-    known : (H, W) bool, the known occluders (not looked for again, and not cloth), or None
-    before : (H, W) bool, what this returned for the frame before, or None. A patch that is
-        mostly that object, moved (half of it within ``FAR_RING_PX`` of it, and not grown to
-        more than ``GROWN`` times its size there), needs the step on only ``STILL_ROUND`` of
-        the cloth around it
-    min_px : smaller patches (pixels) are left alone
-    """
-    view = _nearer_view(depth_m, vertices, faces, K, near_m, known)
-    if view is None:
-        return None
-    (y0, y1, x0, x1), depth, z, on_mesh = view
-    h, w = depth_m.shape
     offset = np.where(on_mesh, depth - z, 0.0)
     nearer = cv2.morphologyEx((on_mesh & (offset < -near_m)).view(np.uint8), cv2.MORPH_OPEN,
                               np.ones((3, 3), np.uint8)).view(bool)
@@ -194,75 +167,8 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
     front[0] = False
     if not front.any():
         return None
-    return _full_size(front[patches], (y0, y1, x0, x1), (h, w))
-
-
-#: How much nearer than the predicted mesh a surface of a colour the object does not have
-#: must be to be taken for an object in front (``unlike_in_front``): more than the depth noise
-#: of a structured-light sensor at 1-2 m and a mesh's few millimetres off its cloth.
-UNLIKE_NEAR_M = 0.01
-#: Once found, such a surface is found again while it stays nearer than the mesh by this much
-#: (metres): the mesh behind it drifts towards it a little.
-STILL_NEARER_M = 0.003
-#: Share of the pixels of the object's colour around such a surface that must lie farther than
-#: it by ``UNLIKE_NEAR_M``: more than half, where a patch of the table a lifted cloth bares
-#: under a lagging mesh has none (the cloth around it is nearer), and fewer than
-#: ``ALL_ROUND`` since the ring takes in the shaded rim of the object itself.
-UNLIKE_ROUND = 0.6
-
-
-def unlike_in_front(depth_m: np.ndarray, rgb: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray,
-                    probability, near_m: float = UNLIKE_NEAR_M, known: np.ndarray | None = None,
-                    before: np.ndarray | None = None, min_px: int = 40) -> np.ndarray | None:
-    """(H, W) bool: surfaces nearer than the predicted mesh, not of the object's colour, and
-    nearer than the object's colour around them; None when there is none.
-
-    ``occluders_in_front`` needs a step all round of its ``near_m`` (3 cm by default) to tell
-    an object from a part of the cloth running ahead of the mesh, and misses a hand or a bar
-    closer to the cloth than that: the colour step of the segmentation then leaves its pixels
-    out of the object while the vertices behind it count as seen, and the boundary term pulls
-    them off it, so that the mesh is pushed along ahead of it (on a real recording, a bar
-    2 cm in front of a foam tube pushed the mesh off most of the tube:
-    ``benchmarks/real_faults.py``). Where the object's colour tells it from its surroundings,
-    the step can be judged against the object's colour alone, and so a smaller one: a part of
-    the cloth running ahead of the mesh is of the cloth's colour, and a table that a lifted
-    cloth bares under a lagging mesh (nearer than the mesh where the mesh sank into it) lies
-    lower than the cloth around it, not higher.
-
-    Found as patches of the other colour over the mesh and nearer than it by
-    ``STILL_NEARER_M``, with pixels nearer by ``near_m`` or more (or, for a patch that is
-    mostly what this returned for the frame before, ``before``, none: the mesh behind an
-    object drifts towards it a little, at its rim), where ``UNLIKE_ROUND`` of the pixels of the
-    object's colour within ``FAR_RING_PX`` of the patch (``STILL_ROUND`` for one found before)
-    lie farther than it by more than ``near_m``.
-
-    rgb : (H, W, 3) uint8; probability : callable taking an (h, w, 3) uint8 image to (h, w)
-        probabilities that each pixel is the object (``ColourModel.probability``; a colour
-        under 0.5 is not the object's); before : (H, W) bool, what this returned for the
-        frame before, or None; the others as ``occluders_in_front``
-    """
-    view = _nearer_view(depth_m, vertices, faces, K, near_m if before is None else STILL_NEARER_M, known)
-    if view is None:
-        return None
-    (y0, y1, x0, x1), depth, z, on_mesh = view
-    unlike = probability(rgb[y0:y1, x0:x1])[::STEP_PX, ::STEP_PX] < 0.5
-    over = cv2.morphologyEx((on_mesh & unlike & (depth < z - STILL_NEARER_M)).view(np.uint8), cv2.MORPH_OPEN,
-                            np.ones((3, 3), np.uint8))
-    n, patches, stats, _ = cv2.connectedComponentsWithStats(over, connectivity=8)
-    area = stats[:, cv2.CC_STAT_AREA]
-    patches[(area < min_px / STEP_PX**2)[patches]] = 0
-    seeded = np.bincount(patches[on_mesh & (depth < z - near_m)], minlength=n) > 0
-    again = np.zeros(n, bool)
-    if before is not None:
-        again = np.bincount(patches[before[y0:y1:STEP_PX, x0:x1:STEP_PX]], minlength=n) >= 0.5 * area
-    # Judged on the object's colour within FAR_RING_PX of the patch: right at an object's rim
-    # its colour blurs and darkens into a shade the object's colour model may take for its own.
-    like = valid_depth(depth) & ~unlike
-    seen, stepped = _steps_all_round(patches, n - 1, depth, like, FAR_RING_PX // STEP_PX, near_m)
-    least = MIN_RING_PX / STEP_PX
-    share = np.where(again, STILL_ROUND, UNLIKE_ROUND)
-    front = (seeded | again) & (seen >= least) & (stepped >= share * np.maximum(seen, 1))
-    front[0] = False
-    if not front.any():
-        return None
-    return _full_size(front[patches], (y0, y1, x0, x1), depth_m.shape)
+    # Grown by a pixel or two: the object's own edge pixels, mixed with the cloth behind.
+    found = cv2.dilate(front[patches].view(np.uint8), np.ones((3, 3), np.uint8))
+    out = np.zeros((h, w), bool)
+    out[y0:y1, x0:x1] = np.repeat(np.repeat(found, STEP_PX, axis=0), STEP_PX, axis=1)[:y1 - y0, :x1 - x0].view(bool)
+    return out

@@ -70,7 +70,7 @@ from perception.geometry import Undistorter, face_areas, face_normals, pixel_ind
 from perception.initial_mesh import InitialisationError, mesh_from_mask, object_area_m2, place_mesh, spacing_for
 from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
-from perception.occluders import occluders_in_front, unlike_in_front
+from perception.occluders import occluders_in_front
 from perception.raster import faces_mask
 from perception.registration import GlobalRegistration
 from perception.segmentation import (
@@ -179,9 +179,7 @@ class TrackerConfig:
     unknown_occluder_m : a surface this much nearer than the predicted mesh, standing out from
         the cloth around it by as much all round, is taken for an object in front of the cloth
         (a hand on it, a tool) and treated as a known occluder, though no occluder mask names
-        it (``perception.occluders``); so is, where the object's colour tells it from its
-        surroundings, a surface nearer than the mesh by ``occluders.UNLIKE_NEAR_M`` or more and
-        not of the object's colour, however close; 0 switches both off
+        it (``perception.occluders``); 0 switches this off
     lambda_m : weight of the motion prior that carries hidden and unobserved vertices
     lambda_l : weight of the stretch term that keeps the mesh's edge lengths (0: the paper's
         energy, whose smoothness lets a mesh shrink onto the part of the object still seen)
@@ -332,8 +330,7 @@ class MeshTracker:
         self._edges = None
         self._visible = None  # (N,) bool, the vertices seen in the last frame
         self._laid_V = None
-        self._unknown_occluder = None  # (H, W) bool, the objects in front found in the last frame by their step
-        self._unlike_occluder = None  # (H, W) bool, and by their colour
+        self._unknown_occluder = None  # (H, W) bool, the objects in front found in the last frame
         self._memory = FrameMemory()
         self.coarse_corrections = 0  # frames predicted otherwise than by constant velocity
         self.last_motion_scores: dict = {}
@@ -825,26 +822,18 @@ class MeshTracker:
 
     def _with_unknown_occluders(self, frame: RGBDFrame, V: np.ndarray) -> RGBDFrame:
         """``frame`` with the objects in front of the mesh ``V`` (N, 3) that nobody announced
-        (``perception.occluders``: standing out from the cloth by a step all round, or, where
-        the object's colour tells it from its surroundings, nearer and of another colour)
-        added to its occluder mask."""
+        (``perception.occluders``) added to its occluder mask."""
         near = self.config.unknown_occluder_m
         if near <= 0:
             return frame
-        K, faces = frame.camera.K, self.mesh.faces
-        stepped = occluders_in_front(frame.depth_m, V, faces, K, near, frame.occluder_mask, self._unknown_occluder)
-        self._unknown_occluder = stepped
-        masks = [m for m in (frame.occluder_mask, stepped) if m is not None]
-        if self._colour is not None and self._colour.informative:
-            known = np.logical_or.reduce(masks) if masks else None
-            unlike = unlike_in_front(frame.depth_m, frame.rgb, V, faces, K, self._colour.probability, known=known,
-                                     before=self._unlike_occluder)
-            self._unlike_occluder = unlike
-            if unlike is not None:
-                masks.append(unlike)
-        if len(masks) == (frame.occluder_mask is not None):  # nothing found
+        front = occluders_in_front(frame.depth_m, V, self.mesh.faces, frame.camera.K, near, frame.occluder_mask,
+                                   self._unknown_occluder)
+        self._unknown_occluder = front
+        if front is None:
             return frame
-        return replace(frame, occluder_mask=np.logical_or.reduce(masks))
+        if frame.occluder_mask is not None:
+            front = front | frame.occluder_mask
+        return replace(frame, occluder_mask=front)
 
     def _solve_frame(self, frame, V_pred, pred_mask, grey, prepared, t0) -> MeshEstimate:
         cfg = self.config

@@ -10,7 +10,7 @@ import pytest
 from ipc.messages import CameraInfo
 from perception.geometry import project
 from perception.mesh import rectangle_mesh
-from perception.occluders import occluders_in_front, unlike_in_front
+from perception.occluders import occluders_in_front
 from perception.raster import faces_mask
 
 CAM = CameraInfo.from_fov(320, 240, np.deg2rad(45))
@@ -117,83 +117,3 @@ def test_an_object_found_before_needs_a_step_on_less_of_its_rim_but_cannot_take_
     front = occluders_in_front(depth, *sheet, K, near_m=0.03, before=np.roll(hand, 6, axis=1))
     assert front is not None and front[hand].all()
     assert occluders_in_front(depth, *sheet, K, near_m=0.03, before=box(100, 120, 140, 160)) is None
-
-
-def _colours(depth, region=None, rgb_in=(200, 190, 60)):
-    """An image of the sheet in one colour, ``region`` painted ``rgb_in``, and the object's
-    colour probability: 1 for the sheet's colour, 0 for any other."""
-    rgb = np.zeros((240, 320, 3), np.uint8)
-    rgb[...] = (40, 90, 160)
-    if region is not None:
-        rgb[region] = rgb_in
-
-    def probability(image):
-        return np.all(image == (40, 90, 160), axis=-1).astype(np.float32)
-
-    return rgb, probability
-
-
-@pytest.mark.parametrize("gap_m", [0.015, 0.02])
-def test_something_of_another_colour_just_in_front_is_found_however_close(sheet, gap_m):
-    depth = flat()
-    hand = box(100, 140, 140, 180)
-    depth[hand] = Z - gap_m  # within the step test's margin: it alone misses it
-    rgb, probability = _colours(depth, hand)
-    assert occluders_in_front(depth, *sheet, K, near_m=0.03) is None
-    front = unlike_in_front(depth, rgb, *sheet, K, probability)
-    assert front is not None and front[hand].all()
-    assert not front[box(60, 90, 60, 260)].any() and front.sum() < 1.5 * hand.sum()
-
-
-def test_the_object_s_own_colour_or_a_surface_behind_is_not_taken_for_something_in_front(sheet):
-    depth = flat()
-    ahead = box(100, 140, 140, 180)
-    depth[ahead] = Z - 0.02  # cloth running ahead of the mesh: of the cloth's colour
-    rgb, probability = _colours(depth)
-    assert unlike_in_front(depth, rgb, *sheet, K, probability) is None
-    depth = flat()
-    bared = box(100, 140, 140, 180)
-    depth[bared] = Z + 0.01  # a table bared where the cloth was: another colour, but behind
-    rgb, probability = _colours(depth, bared)
-    assert unlike_in_front(depth, rgb, *sheet, K, probability) is None
-    depth = flat()
-    depth[ahead] = Z - 0.005  # another colour, nearer by less than the margin (a print, noise)
-    rgb, probability = _colours(depth, ahead)
-    assert unlike_in_front(depth, rgb, *sheet, K, probability) is None
-    depth = flat()
-    depth[ahead] = Z - 0.02
-    rgb, probability = _colours(depth, ahead)  # known already: not looked for again
-    assert unlike_in_front(depth, rgb, *sheet, K, probability, known=ahead) is None
-    # A table bared by a lifted cloth under a mesh that lags 2 cm behind the surface: nearer
-    # than the mesh, not of the cloth's colour, but lower than the cloth around it.
-    vertices, faces = sheet
-    depth = flat()
-    depth[bared] = Z + 0.005
-    rgb, probability = _colours(depth, bared)
-    assert unlike_in_front(depth, rgb, vertices + [0.0, 0.0, 0.02], faces, K, probability) is None
-    depth[bared] = Z - 0.015  # the same patch standing out of the cloth instead: something in front
-    assert unlike_in_front(depth, rgb, vertices + [0.0, 0.0, 0.02], faces, K, probability) is not None
-
-
-def test_an_object_of_another_colour_found_before_is_found_though_the_mesh_drifted_to_it(sheet):
-    # Depth pulls the vertices at the object's rim a few millimetres towards it, and the
-    # prediction carries that on: the mesh behind it comes to lie nearly at its depth.
-    vertices, faces = sheet
-    hand = box(100, 140, 140, 180)
-    depth = flat()
-    depth[hand] = Z - 0.015
-    drifted = vertices - [0.0, 0.0, 0.01]
-    rgb, probability = _colours(depth, hand)
-    assert unlike_in_front(depth, rgb, drifted, faces, K, probability) is None  # nearer by 5 mm only
-    before = unlike_in_front(depth, rgb, vertices, faces, K, probability)
-    again = unlike_in_front(depth, rgb, drifted, faces, K, probability, before=before)
-    assert again is not None and again[hand].all() and again.sum() < 1.5 * hand.sum()
-    moved = np.roll(hand, 6, axis=1)  # it moved on a little: still found
-    depth = flat()
-    depth[moved] = Z - 0.015
-    rgb, probability = _colours(depth, moved)
-    again = unlike_in_front(depth, rgb, drifted, faces, K, probability, before=before)
-    assert again is not None and again[moved].all()
-    depth = flat()  # it went: nothing of its colour is left
-    rgb, probability = _colours(depth)
-    assert unlike_in_front(depth, rgb, drifted, faces, K, probability, before=before) is None
