@@ -76,7 +76,9 @@ def error_with_occlusion(path: Path, title: str, runs: dict[str, dict], hidden_s
     ax_conf.axhline(confident, color="k", linestyle="--", lw=0.8)
     ax_err.set_ylabel(error_label)
     ax_err.set_yscale("symlog", linthresh=10.0)
-    ax_err.set_ylim(bottom=0.0)
+    peaks = [np.nanmax(np.asarray(run["mean_mm"], float)) for run in runs.values()
+             if np.isfinite(np.asarray(run["mean_mm"], float)).any()]
+    ax_err.set_ylim(0.0, 1.5 * max([wrong_mm, *peaks]))  # every run in sight, the worst too
     ax_conf.set_ylabel("confidence")
     ax_conf.set_ylim(-0.02, 1.02)
     shaded = shaded or f"cloth hidden by the occluder (up to {100 * peak:.0f} %)"
