@@ -84,22 +84,19 @@ def _frames(seq) -> list:
     return [seq.frame(i) for i in range(len(seq))]
 
 
-def _object_box(masks: dict, shape) -> tuple[int, int, int, int]:
+def _object_box(masks: dict, shape) -> tuple[int, int, int, int] | None:
+    """The bounding box of the object over the recording (its reference masks), None if they are empty."""
     union = np.zeros(shape, bool)
     for m in masks.values():
         union |= m
-    box = bounding_box(union)
-    if box is None:
-        raise SystemExit("the recording's reference masks are empty")
-    return box
+    return bounding_box(union)
 
 
-def faulted(name: str, frames: list, masks: dict, other: list, window: tuple[int, int], seed: int):
+def faulted(name: str, frames: list, box, other: list, window: tuple[int, int], seed: int):
     """(frames to track as (index into the recording, frame), {index: bar mask}, {indices of
-    frames that do not show the object}) for scenario ``name``."""
+    frames that do not show the object}) for scenario ``name``; ``box`` is the object's
+    (``_object_box``)."""
     a, b = window
-    shape = frames[0].depth_m.shape
-    box = _object_box(masks, shape)
     if name == "dropped":
         return [(i, f) for i, f in enumerate(frames) if i % 2 == 0], {}, set()
     out, bars, away = [], {}, set()
@@ -241,8 +238,9 @@ def main(argv=None) -> int:
     seq = open_sequence(path)
     frames = _frames(seq)
     masks = read_reference_masks(seq)
-    if 0 not in masks:
-        print(f"recording {args.recording!r} has no reference mask for its first frame")
+    box = _object_box(masks, frames[0].depth_m.shape)
+    if 0 not in masks or box is None:
+        print(f"recording {args.recording!r} has no reference mask, or an empty one, for its first frame")
         return 2
     others = sorted(d.name for d in root.iterdir() if d.is_dir() and d.name != args.recording
                     and (d / "rgb.txt").exists())
@@ -256,7 +254,7 @@ def main(argv=None) -> int:
     n = len(frames)
     window = (round(WINDOW[0] * n), round(WINDOW[1] * n))
     K = frames[0].camera.K
-    box = _object_box(masks, frames[0].depth_m.shape)
+    time_s = np.array([f.timestamp_s for f in frames])
     args.pictures.mkdir(parents=True, exist_ok=True)
     print(f"machine: {os.cpu_count()} cores, {platform.processor() or platform.machine()}, "
           f"Python {platform.python_version()}")
@@ -268,11 +266,11 @@ def main(argv=None) -> int:
         results[preset] = {}
         runs_for_plot = {}
         for name in args.scenario:
-            tracked, bars, away = faulted(name, frames, masks, other, window, args.seed)
+            tracked, bars, away = faulted(name, frames, box, other, window, args.seed)
             run = track(tracked, masks[0], config(), f"{preset} {name}", args.quiet)
             s = score(run, clean, masks, bars, away, window, K)
             results[preset][name] = s
-            t = np.array(s["series"]["frame"], float) / 30.0
+            t = time_s[s["series"]["frame"]]
             dev = np.array([np.nan if d is None else d for d in s["series"]["deviation_mm"]])
             runs_for_plot[name] = {"time_s": t, "mean_mm": dev, "confidence": s["series"]["confidence"],
                                    "lost": s["series"]["lost"]}
@@ -281,11 +279,10 @@ def main(argv=None) -> int:
                 picks = [i for i in picks if i in run["estimates"]]
                 strip = _strip(dict(tracked), run["estimates"], picks, box, K, name)
                 cv2.imwrite(str(args.pictures / f"real_faults_{args.recording}_bar.png"), strip[:, :, ::-1])
-        fault_t = np.arange(n) / 30.0
-        shaded = ((fault_t >= window[0] / 30.0) & (fault_t < window[1] / 30.0)).astype(float)
+        in_window = ((np.arange(n) >= window[0]) & (np.arange(n) < window[1])).astype(float)
         error_with_occlusion(args.pictures / f"real_faults_{args.recording}_{preset}.png",
                              f"{args.recording}, {preset}: each fault against the clean run",
-                             runs_for_plot, fault_t, shaded, WRONG_MM, CONFIDENT, shaded="the fault window",
+                             runs_for_plot, time_s, in_window, WRONG_MM, CONFIDENT, shaded="the fault window",
                              error_label="deviation from the clean run (mm)")
     table = _table(results)
     print(table)
