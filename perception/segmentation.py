@@ -382,7 +382,7 @@ def find_by_colour(depth_m: np.ndarray, rgb: np.ndarray, colour: ColourModel,
     return _grow(labels == best, candidate)
 
 
-def _fit_plane_ransac(points: np.ndarray, tol: float, rng: np.random.Generator, iters: int = 200):
+def fit_plane_ransac(points: np.ndarray, tol: float, rng: np.random.Generator, iters: int = 200):
     """Best plane (n, d) with n.p + d = 0 by RANSAC on (P, 3) points; returns (n, d, inlier count)."""
     best = (None, 0.0, 0)
     if len(points) < 3:
@@ -438,7 +438,7 @@ def find_object(depth_m: np.ndarray, K: np.ndarray, cfg: SegmentationConfig = Se
     remaining = np.ones(len(pts), bool)
     for _ in range(cfg.max_planes):
         idx = np.flatnonzero(remaining)
-        n, d, count = _fit_plane_ransac(pts[idx], cfg.plane_inlier_m, rng)
+        n, d, count = fit_plane_ransac(pts[idx], cfg.plane_inlier_m, rng)
         if n is None or count < cfg.plane_min_fraction * len(pts):
             break
         inl = idx[np.abs(pts[idx] @ n + d) < cfg.plane_inlier_m]

@@ -82,6 +82,7 @@ from perception.segmentation import (
     valid_depth,
 )
 from perception.solver import METHODS, SemiImplicitSolver
+from perception.support import SupportPlane, fit_support
 from perception.tether import Tethers
 from perception.visibility import NO_DEPTH, OCCLUDED, VISIBLE, classify_vertices, face_states
 
@@ -179,7 +180,8 @@ class TrackerConfig:
     unknown_occluder_m : a surface this much nearer than the predicted mesh, standing out from
         the cloth around it by as much all round, is taken for an object in front of the cloth
         (a hand on it, a tool) and treated as a known occluder, though no occluder mask names
-        it (``perception.occluders``); 0 switches this off
+        it (``perception.occluders``; where colour tells the cloth from its surroundings, a
+        smaller step and a hue not the cloth's will do); 0 switches both off
     lambda_m : weight of the motion prior that carries hidden and unobserved vertices
     lambda_l : weight of the stretch term that keeps the mesh's edge lengths (0: the paper's
         energy, whose smoothness lets a mesh shrink onto the part of the object still seen)
@@ -339,6 +341,7 @@ class MeshTracker:
         self._anchors: TextureAnchors | None = None
         self._colour: ColourModel | None = None
         self._background: RGBDFrame | None = None  # the empty workspace, undistorted
+        self._support_plane: SupportPlane | None = None  # the plane the object rests on, seen in the first frame
         self._background_given: RGBDFrame | None = None
         self._good_V = None  # (N, 3) the last estimate that was not lost
         self._last_seen = None  # (N, 3) where each vertex was when last seen or held
@@ -484,6 +487,7 @@ class MeshTracker:
         self._anchors = TextureAnchors(obs.grey, V, mesh.faces, visible, obs.K, cfg.anchor_points) \
             if cfg.use_correspondence and cfg.anchor_points > 0 and self._appearance.textured else None
         self._colour = ColourModel(frame.rgb, obs.mask)
+        self._support_plane = fit_support(frame.depth_m, obs.mask, frame.camera.K)
         self._registration = GlobalRegistration(resolve_kind("auto"), rng=self._rng)
         self._registration.build(obs.grey, feature_mask, V, mesh.faces, obs.K)
         self._good_V = V
@@ -729,7 +733,8 @@ class MeshTracker:
             log.debug("frame %d: segmented object of %.3f m^2 against the cloth's %.3f m^2: not it", frame.seq, area, rest)
             return None
         saved = dict(self.__dict__)
-        counters = (self.reacquisitions + 1, self.coarse_corrections, self._cloth_area_m2)
+        # The workspace does not move with the cloth: its plane stays the one seen first.
+        counters = (self.reacquisitions + 1, self.coarse_corrections, self._cloth_area_m2, self._support_plane)
         cloth = self._appearance
         try:
             estimate = self._initialise(frame, mask, None, self._background_given)
@@ -742,7 +747,7 @@ class MeshTracker:
         if estimate is None or estimate.lost:
             self.__dict__.update(saved)
             return None
-        self.reacquisitions, self.coarse_corrections, self._cloth_area_m2 = counters
+        self.reacquisitions, self.coarse_corrections, self._cloth_area_m2, self._support_plane = counters
         log.info("frame %d: object found again by segmentation; new mesh of %d vertices", frame.seq,
                  self.mesh.n_vertices)
         return replace(estimate, timing_ms=(time.perf_counter() - t0) * 1000.0)
@@ -820,14 +825,15 @@ class MeshTracker:
             return V
         return self._tethers.apply(V, frame.held_vertices, frame.held_points_m, self.config.tether_slack)
 
-    def _with_unknown_occluders(self, frame: RGBDFrame, V: np.ndarray) -> RGBDFrame:
+    def _with_unknown_occluders(self, frame: RGBDFrame, V: np.ndarray, differs: np.ndarray | None) -> RGBDFrame:
         """``frame`` with the objects in front of the mesh ``V`` (N, 3) that nobody announced
-        (``perception.occluders``) added to its occluder mask."""
+        (``perception.occluders``) added to its occluder mask; ``differs`` as ``_differs``."""
         near = self.config.unknown_occluder_m
         if near <= 0:
             return frame
         front = occluders_in_front(frame.depth_m, V, self.mesh.faces, frame.camera.K, near, frame.occluder_mask,
-                                   self._unknown_occluder)
+                                   self._unknown_occluder, rgb=frame.rgb, colour=self._colour,
+                                   workspace=None if differs is None else ~differs, support=self._support_plane)
         self._unknown_occluder = front
         if front is None:
             return frame
@@ -840,12 +846,12 @@ class MeshTracker:
         K = frame.camera.K
         faces = self.mesh.faces
         V_pred = self._tethered(V_pred, frame)
-        frame = self._with_unknown_occluders(frame, V_pred)
+        differs = self._differs(frame)
+        frame = self._with_unknown_occluders(frame, V_pred, differs)
         z = V_pred[:, 2]
         state = self._states(V_pred, frame)
         behind = np.any(state[faces] == OCCLUDED, axis=1)
         hidden_mask = faces_mask(project(V_pred, K), faces[behind], pred_mask.shape) if behind.any() else None
-        differs = self._differs(frame)
         not_object = self._not_object(frame, differs)
         segment = segment_tracked(frame.depth_m, pred_mask, (float(z.min()), float(z.max())), cfg.segmentation,
                                   hidden_mask, frame.rgb, self._colour, not_object, with_extent=False, differs=differs)

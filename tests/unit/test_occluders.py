@@ -1,17 +1,21 @@
 """Objects in front of the cloth that nobody announced (``perception.occluders``): a patch
 nearer than the predicted mesh is one when it stands out from the cloth around it by a step
 all round, and not when it runs on into the cloth (a part the mesh lags behind, a flap
-folded over along a crease) or when the whole cloth moved."""
+folded over along a crease) or when the whole cloth moved; closer than that, where colour
+tells the cloth from its surroundings, when it is not of the cloth's colour and not the
+empty workspace (the table bared under a lagging mesh)."""
 
 import cv2
 import numpy as np
 import pytest
 
 from ipc.messages import CameraInfo
+from perception.colour_model import ColourModel
 from perception.geometry import project
 from perception.mesh import rectangle_mesh
 from perception.occluders import occluders_in_front
 from perception.raster import faces_mask
+from perception.support import fit_support
 
 CAM = CameraInfo.from_fov(320, 240, np.deg2rad(45))
 K = CAM.K
@@ -117,3 +121,109 @@ def test_an_object_found_before_needs_a_step_on_less_of_its_rim_but_cannot_take_
     front = occluders_in_front(depth, *sheet, K, near_m=0.03, before=np.roll(hand, 6, axis=1))
     assert front is not None and front[hand].all()
     assert occluders_in_front(depth, *sheet, K, near_m=0.03, before=box(100, 120, 140, 160)) is None
+
+
+def coloured(cloth):
+    """(240, 320, 3) uint8: a blue cloth where ``cloth`` (240, 320) bool, grey elsewhere, with sensor noise."""
+    rng = np.random.default_rng(0)
+    rgb = np.where(cloth[..., None], [40, 70, 170], [150, 150, 145]).astype(np.float64)
+    return np.clip(rgb + rng.normal(0, 2, rgb.shape), 0, 255).astype(np.uint8)
+
+
+def test_an_object_closer_than_the_step_is_found_by_its_colour_with_its_part_beside_the_cloth(sheet):
+    depth = flat()
+    rgb = coloured(depth < 2.0)
+    colour = ColourModel(rgb, depth < 2.0)
+    arm = box(0, 140, 140, 175)  # from above the image down onto the sheet, 1.5 cm in front of it
+    depth[arm] = Z - 0.015
+    rgb[arm] = (200, 60, 50)
+    assert occluders_in_front(depth, *sheet, K, near_m=0.03) is None  # no step to see
+    front = occluders_in_front(depth, *sheet, K, near_m=0.03, rgb=rgb, colour=colour)
+    vertices, faces = sheet
+    over_mesh = faces_mask(project(vertices, K), faces, depth.shape)
+    assert front is not None and front[arm & over_mesh].mean() > 0.95
+    # Its part in front of the wall, next to the sheet, hides the sheet's outline too (the
+    # search reaches some way beyond the mesh, not to the image's edge).
+    grown = lambda r: cv2.dilate(over_mesh.view(np.uint8), np.ones((2 * r + 1,) * 2, np.uint8)).view(bool)  # noqa: E731
+    beside = arm & grown(16) & ~grown(4)
+    assert beside.sum() > 300 and front[beside].all()
+    assert not front[~cv2.dilate(arm.view(np.uint8), np.ones((7, 7), np.uint8)).view(bool)].any()  # nor the wall
+
+
+def test_cloth_of_the_cloth_s_colour_nearer_than_predicted_is_not_taken_for_an_object(sheet):
+    depth = flat()
+    rgb = coloured(depth < 2.0)
+    colour = ColourModel(rgb, depth < 2.0)
+    depth[box(100, 140, 140, 180)] = Z - 0.015  # a patch of the cloth the mesh lags behind
+    assert occluders_in_front(depth, *sheet, K, near_m=0.03, rgb=rgb, colour=colour) is None
+
+
+def test_the_table_bared_under_a_lagging_mesh_is_not_an_object_in_front(sheet):
+    # The sheet lay on a grey table (the wall, 3 mm behind it). Now a corner is lifted: the
+    # predicted mesh sank 2 cm into the table where the cloth left it, and, seen obliquely,
+    # the lifted cloth beyond lies farther from the camera than the bared table. There the
+    # table is nearer than the mesh and than the cloth around it, and not of the cloth's
+    # colour, as an arm in front would be.
+    lying = flat()
+    lying[lying > 2.0] = Z + 0.003
+    cloth = np.abs(lying - Z) < 0.001
+    rgb = coloured(cloth)
+    colour = ColourModel(rgb, cloth)
+    support = fit_support(lying, cloth, K)
+    assert support is not None
+    vertices, faces = sheet
+    sunk = vertices + [0.0, 0.0, 0.02]
+    depth = np.where(cloth, Z + 0.03, lying).astype(np.float32)
+    bared = box(100, 140, 190, 240)  # from under the sheet's right edge, joined to the table beyond
+    depth[bared] = Z + 0.003
+    rgb[bared] = (150, 150, 145)
+    found = occluders_in_front(depth, sunk, faces, K, near_m=0.03, rgb=rgb, colour=colour)
+    assert found is not None and found[bared & (COLS < 228)].mean() > 0.9  # without knowing the table: taken
+    assert occluders_in_front(depth, sunk, faces, K, near_m=0.03, rgb=rgb, colour=colour, support=support) is None
+    workspace = np.abs(depth - (Z + 0.003)) < 1e-4  # the empty workspace, as a background tells it
+    assert occluders_in_front(depth, sunk, faces, K, near_m=0.03, rgb=rgb, colour=colour, workspace=workspace) is None
+
+
+def test_an_object_found_by_its_colour_is_kept_while_a_little_nearer_than_the_mesh(sheet):
+    # An arm 1.5 cm in front of the cloth, and the mesh behind it drawn 1 cm towards it: it
+    # is only 5 mm nearer than the mesh, which is enough for an object found the frame before.
+    depth = flat()
+    rgb = coloured(depth < 2.0)
+    colour = ColourModel(rgb, depth < 2.0)
+    arm = box(0, 140, 140, 175)
+    depth[arm] = Z - 0.015
+    rgb[arm] = (200, 60, 50)
+    vertices, faces = sheet
+    drawn = vertices - [0.0, 0.0, 0.01]
+    assert occluders_in_front(depth, drawn, faces, K, near_m=0.03, rgb=rgb, colour=colour) is None
+    front = occluders_in_front(depth, drawn, faces, K, near_m=0.03, rgb=rgb, colour=colour, before=arm)
+    over_mesh = faces_mask(project(vertices, K), faces, depth.shape)
+    assert front is not None and front[arm & over_mesh].mean() > 0.95
+
+
+def test_a_patch_of_another_colour_within_the_cloth_is_a_print_not_an_object_in_front(sheet):
+    # A print the first frame did not show, on a fold's crest: nearer than the mesh and than
+    # the cloth all round, but it does not reach past the cloth as an arm or a hand would.
+    depth = flat()
+    rgb = coloured(depth < 2.0)
+    colour = ColourModel(rgb, depth < 2.0)
+    crest = box(100, 140, 140, 180)
+    depth[crest] = Z - 0.015
+    rgb[crest] = (200, 60, 50)
+    assert occluders_in_front(depth, *sheet, K, near_m=0.03, rgb=rgb, colour=colour) is None
+
+
+def test_a_fold_in_the_shade_is_cloth_not_an_object_in_front(sheet):
+    # A part of the cloth nearer than the lagging mesh, darkened and greyed by the shade of a
+    # fold (its colour no longer the cloth's), runs on into the cloth beside it without a step.
+    depth = flat()
+    rgb = coloured(depth < 2.0)
+    colour = ColourModel(rgb, depth < 2.0)
+    x = (COLS - K[0, 2]) / K[0, 0] * Z
+    y = (ROWS - K[1, 2]) / K[1, 1] * Z
+    bulge = 0.03 * np.exp(-(x**2 + y**2) / (2 * 0.06**2))
+    on = depth < 2.0
+    depth[on] -= bulge[on].astype(np.float32)
+    shade = on & (bulge > 0.015)
+    rgb[shade] = (90, 92, 100)
+    assert occluders_in_front(depth, *sheet, K, near_m=0.03, rgb=rgb, colour=colour) is None

@@ -143,6 +143,38 @@ def test_an_object_close_in_front_that_nobody_names_hides_the_sheet_behind_it(te
     assert worst < 0.005, f"hidden vertices up to {worst * 1000:.1f} mm from the sheet"
 
 
+@pytest.mark.parametrize("find", [True, False])
+def test_an_object_closer_than_the_step_is_found_by_its_hue(find):
+    """A blue bar 12 cm wide, 2 cm in front of a plain orange sheet (closer than the depth
+    step ``unknown_occluder_m`` can tell from the cloth's folds), comes in from beyond the
+    sheet's left edge and sweeps across it, its mask unknown. Found by its hue, it hides the
+    vertices behind it; with the search off, it drags them along by 10 cm and more."""
+    tex = texture(np.random.default_rng(7), textured=False)
+    shifts = [np.array([0.004 * k, 0.002 * k, 0.0]) for k in range(16)]
+    tracker = MeshTracker(TrackerConfig(unknown_occluder_m=0.03 if find else 0.0))
+    e0 = tracker.initialise(sheet(shifts[0], tex, 0))
+    bar_px = int(CAM.K[0, 0] * 0.12 / (CENTRE[2] - 0.02))
+    shade = 0.75 + 0.25 * np.sin(np.linspace(0, np.pi, bar_px))  # lit like a cylinder
+    worst, seen_behind = 0.0, 0
+    for k in range(1, len(shifts)):
+        x0 = 40 + 18 * k
+        frame = sheet(shifts[k], tex, k)
+        rgb, depth = frame.rgb.copy(), frame.depth_m.copy()
+        rgb[:, x0 : x0 + bar_px] = (np.array([60, 90, 190]) * shade[:, None]).astype(np.uint8)
+        depth[:, x0 : x0 + bar_px] = CENTRE[2] - 0.02
+        e = tracker.track(dataclasses.replace(frame, rgb=rgb, depth_m=depth))
+        truth = e0.vertices + shifts[k]
+        cols = np.rint(project(truth, CAM.K)[:, 0]).astype(int)
+        behind = (cols >= x0) & (cols < x0 + bar_px)
+        seen_behind += int(e.visible[behind & (cols > x0 + 3) & (cols < x0 + bar_px - 3)].sum())
+        if behind.any():
+            worst = max(worst, np.linalg.norm(e.vertices - truth, axis=1)[behind].mean())
+    if find:
+        assert seen_behind < 20 and worst < 0.02, (seen_behind, worst)
+    else:
+        assert seen_behind > 200 and worst > 0.05, (seen_behind, worst)
+
+
 def test_an_occluder_coming_over_the_edge_does_not_drag_the_outline_with_it(tex):
     """A bar 40 cm in front of a still sheet comes slowly in over its left edge and covers a
     quarter of it; the sensor loses the depth in a 6-pixel band around the bar, as real ones
