@@ -55,7 +55,7 @@ import cv2
 import numpy as np
 
 from perception.colour_model import ColourModel
-from perception.geometry import pixel_index, project
+from perception.geometry import directed_edges, pixel_index, project
 from perception.raster import locate_pixels
 from perception.segmentation import SHADOW_PX, valid_depth
 from perception.support import SupportPlane
@@ -228,7 +228,7 @@ def _rim_vertices(vertices: np.ndarray, faces: np.ndarray, d: np.ndarray, measur
     unlike[measured] = colour.chroma_probability_at(rgb[measured]) < UNLIKE_P
     near = np.where(was, KEEP_NEAR_M, UNLIKE_NEAR_M) if was is not None else UNLIKE_NEAR_M
     closer = unlike & (d < vertices[:, 2] - near)
-    a, b = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]]).T  # each edge once or twice
+    a, b = directed_edges(faces).T  # an edge inside the mesh comes twice: the counts below are shares
     a, b = np.concatenate([a, b]), np.concatenate([b, a])
     to_cloth = closer[a] & measured[b] & ~unlike[b]
     n_cloth = np.bincount(a[to_cloth], minlength=len(vertices))
