@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from perception.geometry import rays
+from perception.geometry import backproject
 from perception.segmentation import fit_plane_ransac, valid_depth
 
 #: The ring's inner edge lies this far outside the object's mask (pixels): the outline's
@@ -65,8 +65,8 @@ class SupportPlane:
         ``step``-th pixel from column ``x0``, row ``y0``, as ``depth[y0::step, x0::step]``."""
         h, w = depth_m.shape
         rows, cols = np.indices((h, w))
-        uv = np.column_stack([(x0 + step * cols).ravel(), (y0 + step * rows).ravel()]).astype(np.float64)
-        points = rays(uv, K) * np.where(valid_depth(depth_m), depth_m, np.nan).reshape(-1, 1)
+        uv = np.column_stack([(x0 + step * cols).ravel(), (y0 + step * rows).ravel()])
+        points = backproject(uv, np.where(valid_depth(depth_m), depth_m, np.nan).ravel(), K)
         with np.errstate(invalid="ignore"):
             return (np.abs(self.height(points)) <= tol_m).reshape(h, w)
 
@@ -88,8 +88,7 @@ def fit_support(depth_m: np.ndarray, mask: np.ndarray, K: np.ndarray, seed: int 
     if len(rows) < MIN_POINTS:
         return None
     pick = np.linspace(0, len(rows) - 1, min(len(rows), MAX_POINTS)).astype(int)
-    uv = np.column_stack([cols[pick], rows[pick]]).astype(np.float64)
-    points = rays(uv, K) * depth_m[rows[pick], cols[pick]].astype(np.float64)[:, None]
+    points = backproject(np.column_stack([cols[pick], rows[pick]]), depth_m[rows[pick], cols[pick]], K)
     normal, offset, count = fit_plane_ransac(points, ON_PLANE_M, np.random.default_rng(seed), TRIALS)
     if normal is None or count < MIN_SHARE * len(points):
         return None
@@ -99,8 +98,7 @@ def fit_support(depth_m: np.ndarray, mask: np.ndarray, K: np.ndarray, seed: int 
     obj_rows, obj_cols = np.nonzero(mask & valid_depth(depth_m))
     if not len(obj_rows):
         return None
-    obj = rays(np.column_stack([obj_cols, obj_rows]).astype(np.float64), K) * \
-        depth_m[obj_rows, obj_cols].astype(np.float64)[:, None]
+    obj = backproject(np.column_stack([obj_cols, obj_rows]), depth_m[obj_rows, obj_cols], K)
     if np.median(plane.height(obj)) < -ON_PLANE_M:
         return None
     if np.count_nonzero(plane.on_plane(depth_m, K) & ~mask) < MIN_EXTENT * np.count_nonzero(mask):

@@ -733,8 +733,9 @@ class MeshTracker:
             log.debug("frame %d: segmented object of %.3f m^2 against the cloth's %.3f m^2: not it", frame.seq, area, rest)
             return None
         saved = dict(self.__dict__)
-        # The workspace does not move with the cloth: its plane stays the one seen first.
-        counters = (self.reacquisitions + 1, self.coarse_corrections, self._cloth_area_m2, self._support_plane)
+        # Carried over to the new mesh: the counts, the cloth's first area, and the workspace's
+        # plane (it does not move with the cloth: it stays the one seen first).
+        kept = (self.reacquisitions + 1, self.coarse_corrections, self._cloth_area_m2, self._support_plane)
         cloth = self._appearance
         try:
             estimate = self._initialise(frame, mask, None, self._background_given)
@@ -747,7 +748,7 @@ class MeshTracker:
         if estimate is None or estimate.lost:
             self.__dict__.update(saved)
             return None
-        self.reacquisitions, self.coarse_corrections, self._cloth_area_m2, self._support_plane = counters
+        self.reacquisitions, self.coarse_corrections, self._cloth_area_m2, self._support_plane = kept
         log.info("frame %d: object found again by segmentation; new mesh of %d vertices", frame.seq,
                  self.mesh.n_vertices)
         return replace(estimate, timing_ms=(time.perf_counter() - t0) * 1000.0)
