@@ -17,7 +17,11 @@ minimisation, the feature gate and the segmentation margin can reach.
   depth of the object?
 
 The tracker scores its constant-velocity prediction, the previous mesh unmoved and the
-mesh moved by the measured translation, and goes on from the best.
+mesh moved by the measured translation, and goes on from the best. It judges them by the
+vertices seen in the previous frame away from anything that stood in front of the cloth
+there (``near``): the stored frame is blurred, so a vertex beside an arm looks like the arm,
+and on a plain cloth an arm's edges are all the contrast the image has, so the mesh moved
+with the arm would agree best with them.
 
 Images are (H, W) uint8 grey; pixel coordinates (P, 2) float (u, v) at full resolution.
 """
@@ -27,8 +31,12 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
+from perception.geometry import pixel_index
+
 #: Below this correlation response the phase-correlation peak is no better than noise.
 MIN_RESPONSE = 0.08
+#: Standard deviation of the blur of the stored frame, stored pixels.
+BLUR_SIGMA = 1
 
 
 class FrameMemory:
@@ -50,7 +58,22 @@ class FrameMemory:
         misalignment does not change what a comparison sees)."""
         s = self.scale
         img = grey if s == 1 else cv2.resize(grey, None, fx=1.0 / s, fy=1.0 / s, interpolation=cv2.INTER_AREA)
-        return cv2.GaussianBlur(img.astype(np.float32), (0, 0), 1.0)
+        return cv2.GaussianBlur(img.astype(np.float32), (0, 0), BLUR_SIGMA)
+
+    @property
+    def blur_reach_px(self) -> int:
+        """How far (full-resolution pixels) a stored pixel's value reaches: three standard
+        deviations of the blur, at the stored resolution."""
+        return 3 * BLUR_SIGMA * self.scale
+
+    def near(self, mask: np.ndarray, uv: np.ndarray) -> np.ndarray:
+        """(P,) bool: which points ``uv`` (P, 2) lie within ``blur_reach_px`` of ``mask`` (H, W)
+        bool, full resolution: their stored values are mixed with the masked pixels'."""
+        reach = 2 * self.blur_reach_px + 1
+        grown = cv2.dilate(mask.view(np.uint8), np.ones((reach, reach), np.uint8))
+        h, w = mask.shape
+        cols, rows, inside = pixel_index(uv, w, h)
+        return inside & (grown[rows, cols] > 0)
 
     def push(self, small: np.ndarray) -> None:
         self.previous = small

@@ -333,6 +333,7 @@ class MeshTracker:
         self._visible = None  # (N,) bool, the vertices seen in the last frame
         self._laid_V = None
         self._unknown_occluder = None  # (H, W) bool, the objects in front found in the last frame
+        self._occluded_before = None  # (H, W) bool, every object in front of the mesh in the last frame
         self._memory = FrameMemory()
         self.coarse_corrections = 0  # frames predicted otherwise than by constant velocity
         self.last_motion_scores: dict = {}
@@ -481,6 +482,7 @@ class MeshTracker:
                 self._corr.points.initialise(obs.grey, feature_mask, V, mesh.faces, obs.K)
         self.last_observation = obs
         self._memory.push(self._memory.small(obs.grey))
+        self._occluded_before = frame.occluder_mask
         visible = self._states(V, frame) == VISIBLE
         self._appearance = AppearanceModel(frame.rgb, V, mesh.faces, frame.camera.K, visible, mesh.spacing_m,
                                            mesh.boundary, mesh.canonical)
@@ -763,6 +765,10 @@ class MeshTracker:
         K = frame.camera.K
         uv_prev = project(self._V, K)
         seen = np.all(np.isfinite(uv_prev), axis=1) & (self._visible if self._visible is not None else True)
+        if self._occluded_before is not None:
+            # The stored frame is blurred: a vertex next to an object in front looks like the
+            # object there, and a hypothesis that moves with the object would score well.
+            seen &= ~self._memory.near(self._occluded_before, uv_prev)
         if seen.sum() < 3:
             return V_pred
         scores = {"velocity": self._support(V_pred, small, frame, uv_prev, seen)}
@@ -849,6 +855,7 @@ class MeshTracker:
         V_pred = self._tethered(V_pred, frame)
         differs = self._differs(frame)
         frame = self._with_unknown_occluders(frame, V_pred, differs)
+        self._occluded_before = frame.occluder_mask
         z = V_pred[:, 2]
         state = self._states(V_pred, frame)
         behind = np.any(state[faces] == OCCLUDED, axis=1)

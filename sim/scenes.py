@@ -31,6 +31,7 @@ Beside them, not in the table by default (``MORE_HANDLED_SCENES``):
 - ``occluder_close``: ``occluder_sweep`` with the occluder just in front of the cloth, its
   back 1-8 cm before it, as a hand on the cloth or a tool passing close: nearer than the
   tracker's occlusion margin.
+- ``occluder_plain``: ``occluder_close`` on a cloth of one plain colour.
 
 Their occluders are drawn (``sim.solids``), never simulated: a scene made with
 ``occluders=False`` is their twin, the same cloth moving the same way with nothing drawn
@@ -563,6 +564,14 @@ def occluder_close_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSp
     return replace(occluder_sweep_spec(rng, camera, close=True), name="occluder_close")
 
 
+def occluder_plain_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
+    """``occluder_close`` on a cloth of one plain colour (drawn after everything else, so the
+    same cloth, motion and occluder as ``occluder_close``): there the occluder's edges are the
+    image's only contrast, and its motion the only one an image comparison sees."""
+    spec = occluder_close_spec(rng, camera)
+    return replace(spec, name="occluder_plain", texture_rgb=plain_texture(random_plain_colour(rng)))
+
+
 def gripper_corner_move_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
     """A robot's gripper, wrist and arm grasp a hanging cloth's free bottom corner, lift it and carry it sideways.
 
@@ -851,6 +860,7 @@ shirt_textureless_rotate = _factory("shirt_textureless_rotate", shirt_textureles
 towel_sway = _factory("towel_sway", towel_sway_spec)
 occluder_sweep = _factory("occluder_sweep", occluder_sweep_spec)
 occluder_close = _factory("occluder_close", occluder_close_spec)
+occluder_plain = _factory("occluder_plain", occluder_plain_spec)
 gripper_corner_move = _factory("gripper_corner_move", gripper_corner_move_spec)
 table_lift = _factory("table_lift", table_lift_spec)
 
@@ -861,6 +871,7 @@ SCENES: dict[str, Callable[..., ClothScene]] = {
     "towel_sway": towel_sway,
     "occluder_sweep": occluder_sweep,
     "occluder_close": occluder_close,
+    "occluder_plain": occluder_plain,
     "gripper_corner_move": gripper_corner_move,
     "table_lift": table_lift,
 }
@@ -869,7 +880,7 @@ PAPER_SCENES = ("poster_bend", "shirt_chair", "shirt_textureless_rotate", "towel
 #: A cloth handled, with an occluder drawn in front of it (the "Tracking while handled" table).
 HANDLED_SCENES = ("occluder_sweep", "gripper_corner_move", "table_lift")
 #: More handled scenes, run when named (``launch_scripts.evaluate --handled --scenes NAME``).
-MORE_HANDLED_SCENES = ("occluder_close",)
+MORE_HANDLED_SCENES = ("occluder_close", "occluder_plain")
 
 
 def make_scene(name: str, seed: int = 0, noise: bool = True, width: int = 640, height: int = 480,

@@ -16,6 +16,7 @@ from sim.scenes import (
     kinect_camera,
     make_scene,
     occluder_close_spec,
+    occluder_plain_spec,
     occluder_sweep_spec,
     table_lift_spec,
 )
@@ -88,6 +89,18 @@ def test_the_close_sweep_moves_the_same_cloth_with_its_occluder_just_in_front():
         np.testing.assert_array_equal(close.cloth_vertices_world, far.cloth_vertices_world)
         back = -close.occluders(0.0).points[:, 1].max()  # its back, in front of the cloth's rest plane
         assert 0.01 <= back <= 0.08 + 0.03 + 1e-6, f"seed {seed}: back {back:.3f} m in front of the cloth"
+
+
+def test_the_plain_sweep_is_the_close_sweep_on_a_cloth_of_one_colour():
+    camera = kinect_camera(W, H)
+    for seed in range(6):
+        close = occluder_close_spec(np.random.default_rng(seed), camera)
+        plain = occluder_plain_spec(np.random.default_rng(seed), camera)
+        assert plain.name == "occluder_plain"
+        np.testing.assert_array_equal(plain.cloth_vertices_world, close.cloth_vertices_world)
+        np.testing.assert_array_equal(plain.occluders(0.5).points, close.occluders(0.5).points)
+        assert np.ptp(plain.texture_rgb.reshape(-1, 3), axis=0).max() == 0, "one colour"
+        assert np.ptp(close.texture_rgb.reshape(-1, 3), axis=0).max() > 0
 
 
 @pytest.mark.slow
