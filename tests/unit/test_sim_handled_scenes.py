@@ -81,22 +81,17 @@ def test_sweeping_occluders_are_arm_sized_and_cross_the_cloth_in_front_of_it():
 
 
 def test_the_close_sweep_moves_the_same_cloth_with_its_occluder_just_in_front():
+    """The same cloth and motion as the far sweep, the occluder 1-11 cm in front of the cloth;
+    ``occluder_plain`` is that sweep again on a cloth of one colour."""
     camera = kinect_camera(W, H)
     for seed in range(12):
         far = occluder_sweep_spec(np.random.default_rng(seed), camera)
         close = occluder_close_spec(np.random.default_rng(seed), camera)
-        assert close.name == "occluder_close"
+        plain = occluder_plain_spec(np.random.default_rng(seed), camera)
+        assert close.name == "occluder_close" and plain.name == "occluder_plain"
         np.testing.assert_array_equal(close.cloth_vertices_world, far.cloth_vertices_world)
         back = -close.occluders(0.0).points[:, 1].max()  # its back, in front of the cloth's rest plane
         assert 0.01 <= back <= 0.08 + 0.03 + 1e-6, f"seed {seed}: back {back:.3f} m in front of the cloth"
-
-
-def test_the_plain_sweep_is_the_close_sweep_on_a_cloth_of_one_colour():
-    camera = kinect_camera(W, H)
-    for seed in range(6):
-        close = occluder_close_spec(np.random.default_rng(seed), camera)
-        plain = occluder_plain_spec(np.random.default_rng(seed), camera)
-        assert plain.name == "occluder_plain"
         np.testing.assert_array_equal(plain.cloth_vertices_world, close.cloth_vertices_world)
         np.testing.assert_array_equal(plain.occluders(0.5).points, close.occluders(0.5).points)
         assert np.ptp(plain.texture_rgb.reshape(-1, 3), axis=0).max() == 0, "one colour"
