@@ -36,7 +36,7 @@ from perception.geometry import pixel_index
 #: Below this correlation response the phase-correlation peak is no better than noise.
 MIN_RESPONSE = 0.08
 #: Standard deviation of the blur of the stored frame, stored pixels.
-BLUR_SIGMA = 1
+BLUR_SIGMA = 1.0
 
 
 class FrameMemory:
@@ -62,13 +62,17 @@ class FrameMemory:
 
     @property
     def blur_reach_px(self) -> int:
-        """How far (full-resolution pixels) a stored pixel's value reaches: three standard
-        deviations of the blur, at the stored resolution."""
-        return 3 * BLUR_SIGMA * self.scale
+        """How far (full-resolution pixels) a pixel's value spreads in the stored frame: three
+        standard deviations of the blur, at the stored resolution (there the blur's weight
+        has fallen to about 1 % of its centre's)."""
+        return int(np.ceil(3 * BLUR_SIGMA * self.scale))
 
     def near(self, mask: np.ndarray, uv: np.ndarray) -> np.ndarray:
         """(P,) bool: which points ``uv`` (P, 2) lie within ``blur_reach_px`` of ``mask`` (H, W)
         bool, full resolution: their stored values are mixed with the masked pixels'."""
+        mask = np.asarray(mask, dtype=bool)
+        if not mask.any():
+            return np.zeros(len(uv), bool)
         reach = 2 * self.blur_reach_px + 1
         grown = cv2.dilate(mask.view(np.uint8), np.ones((reach, reach), np.uint8))
         h, w = mask.shape

@@ -333,7 +333,7 @@ class MeshTracker:
         self._visible = None  # (N,) bool, the vertices seen in the last frame
         self._laid_V = None
         self._unknown_occluder = None  # (H, W) bool, the objects in front found in the last frame
-        self._occluded_before = None  # (H, W) bool, every object in front of the mesh in the last frame
+        self._occluded_before = None  # (H, W) bool, what was in front of the mesh in the last frame: known or found
         self._memory = FrameMemory()
         self.coarse_corrections = 0  # frames predicted otherwise than by constant velocity
         self.last_motion_scores: dict = {}
@@ -738,9 +738,12 @@ class MeshTracker:
         # Carried over to the new mesh: the counts, the cloth's first area, and the workspace's
         # plane (it does not move with the cloth: it stays the one seen first).
         kept = (self.reacquisitions + 1, self.coarse_corrections, self._cloth_area_m2, self._support_plane)
+        # ``frame`` and the workspace are undistorted already: the new mesh is laid on them as
+        # they are, and the camera's own undistortion stays for the frames to come.
+        lens = (self._undistort, self._background_given)
         cloth = self._appearance
         try:
-            estimate = self._initialise(frame, mask, None, self._background_given)
+            estimate = self._initialise(frame, mask, None, self._background)
         except TrackingError:
             estimate = None
         if estimate is not None and frame.occluder_mask is None and cloth is not None \
@@ -751,6 +754,7 @@ class MeshTracker:
             self.__dict__.update(saved)
             return None
         self.reacquisitions, self.coarse_corrections, self._cloth_area_m2, self._support_plane = kept
+        self._undistort, self._background_given = lens
         log.info("frame %d: object found again by segmentation; new mesh of %d vertices", frame.seq,
                  self.mesh.n_vertices)
         return replace(estimate, timing_ms=(time.perf_counter() - t0) * 1000.0)
@@ -767,8 +771,11 @@ class MeshTracker:
         seen = np.all(np.isfinite(uv_prev), axis=1) & (self._visible if self._visible is not None else True)
         if self._occluded_before is not None:
             # The stored frame is blurred: a vertex next to an object in front looks like the
-            # object there, and a hypothesis that moves with the object would score well.
-            seen &= ~self._memory.near(self._occluded_before, uv_prev)
+            # object there, and a hypothesis that moves with the object would score well. Left
+            # out of the whole stage (the scores, the box the translation is measured in, the
+            # depth change measured), unless too few are left to judge by.
+            away = seen & ~self._memory.near(self._occluded_before, uv_prev)
+            seen = away if away.sum() >= 3 else seen
         if seen.sum() < 3:
             return V_pred
         scores = {"velocity": self._support(V_pred, small, frame, uv_prev, seen)}

@@ -567,7 +567,9 @@ def occluder_close_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSp
 def occluder_plain_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
     """``occluder_close`` on a cloth of one plain colour (drawn after everything else, so the
     same cloth, motion and occluder as ``occluder_close``): there the occluder's edges are the
-    image's only contrast, and its motion the only one an image comparison sees."""
+    image's only contrast, and its motion the only one an image comparison sees. The occluder's
+    colour may come out near the cloth's (both can be a random plain colour): then nothing
+    tells it from the cloth that close, as with a grey arm over a grey cloth."""
     spec = occluder_close_spec(rng, camera)
     return replace(spec, name="occluder_plain", texture_rgb=plain_texture(random_plain_colour(rng)))
 

@@ -8,6 +8,7 @@ distortion ``D`` (OpenCV's and ROS CameraInfo's coefficients k1, k2, p1, p2 [, k
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import lru_cache
 
 import cv2
@@ -126,4 +127,5 @@ class Undistorter:
         occluder = None
         if frame.occluder_mask is not None:
             occluder = cv2.remap(frame.occluder_mask.view(np.uint8), mx, my, cv2.INTER_NEAREST) > 0
-        return RGBDFrame(rgb, depth, self.pinhole, frame.timestamp_s, frame.seq, occluder_mask=occluder)
+        # Everything else (what the robot holds and where, in 3D) does not depend on the lens.
+        return replace(frame, rgb=rgb, depth_m=depth, camera=self.pinhole, occluder_mask=occluder)

@@ -337,8 +337,7 @@ def test_recent_keeps_the_messages_taken_or_skipped_not_the_one_waiting():
     with Publisher(ANY_PORT, source="frames", heartbeat_period_s=0.05) as pub, \
             Subscriber(pub.endpoint, accept=(m.RGBDFrame,), keep_recent=3) as sub, \
             Subscriber(pub.endpoint, accept=(m.RGBDFrame,)) as plain:
-        first = publish_until_received(pub, sub, FRAME)
-        assert sub.recent() == [first]
+        publish_until_received(pub, sub, FRAME)
         publish_until_received(pub, plain, FRAME)  # its subscription may arrive later
         # The copies sent while the subscriptions were on their way may still land after the
         # one taken (late on a loaded machine): take them, so that none counts as skipped below.

@@ -53,6 +53,16 @@ def test_undistorter_moves_pixels_to_pinhole_positions():
     assert Undistorter(plain.camera)(plain) is plain
 
 
+def test_undistorter_keeps_what_the_lens_does_not_touch():
+    cam = CameraInfo(640, 480, K, np.array([-0.25, 0.08, 0.0, 0.0, 0.0]))
+    frame = RGBDFrame(np.zeros((480, 640, 3), np.uint8), np.ones((480, 640), np.float32), cam, timestamp_s=2.5, seq=7,
+                      held_vertices=np.array([3, 9], np.int32), held_points_m=np.array([[0.1, 0.0, 1.0], [0.2, 0.0, 1.0]]))
+    out = Undistorter(cam)(frame)
+    assert out.camera.D.size == 0 and (out.timestamp_s, out.seq) == (2.5, 7)
+    assert out.held_vertices.tolist() == [3, 9]  # what the robot holds, and where, in 3D
+    np.testing.assert_array_equal(out.held_points_m, frame.held_points_m)
+
+
 def test_project_with_distortion_matches_opencv():
     rng = np.random.default_rng(3)
     points = rng.uniform([-0.3, -0.2, 0.8], [0.3, 0.2, 1.5], (20, 3))
