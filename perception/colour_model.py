@@ -19,6 +19,8 @@ import cv2
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
+from perception.raster import disc
+
 #: bins of L, a and b: brightness more coarsely (shading changes it) than chroma (cloth and
 #: table are often both near grey, a few units of a and b apart)
 BINS = (8, 32, 32)
@@ -53,7 +55,7 @@ class ColourModel:
     def __init__(self, rgb: np.ndarray, mask: np.ndarray, ring_px: int = 40):
         n = int(np.prod(BINS))
         bins = _bin_index(rgb)
-        ring = cv2.dilate(mask.astype(np.uint8), cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * ring_px + 1,) * 2))
+        ring = cv2.dilate(mask.astype(np.uint8), disc(ring_px))
         ring = ring.astype(bool) & ~mask
         obj = np.bincount(bins[mask], minlength=n).astype(np.float64)
         bg = np.bincount(bins[ring], minlength=n).astype(np.float64)

@@ -63,6 +63,7 @@ import cv2
 import numpy as np
 
 from perception.geometry import pixel_index, project
+from perception.raster import disc
 from perception.registration import rigid_fit
 
 #: cue value below which an estimate is lost whatever the others say
@@ -180,7 +181,7 @@ def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, 
         spacing_px = K[0, 0] * float(np.median(rest_lengths_m)) / max(float(np.median(vertices[:, 2])), 1e-6)
         # at most the image's size: a mesh pushed against the camera has huge spacings in pixels
         radius = int(np.clip(np.ceil(0.75 * spacing_px / q), 1, max(small.shape)))
-        footprint = cv2.dilate(footprint, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1,) * 2))
+        footprint = cv2.dilate(footprint, disc(radius))
         coverage = (footprint.astype(bool) & small).sum() / area
     if leak > 0.3:
         coverage = 1.0

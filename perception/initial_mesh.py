@@ -15,6 +15,7 @@ import numpy as np
 from perception.geometry import pixel_index, project, rays
 from perception.mesh import CanonicalMesh, lattice_covering, lattice_to_xy, mesh_from_lattice
 from perception.observation import Observation
+from perception.raster import disc
 
 
 class InitialisationError(ValueError):
@@ -77,8 +78,7 @@ def solid_mask(mask: np.ndarray, close_px: int) -> np.ndarray:
     """
     m = mask.astype(np.uint8)
     if close_px >= 3:
-        k = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (close_px | 1, close_px | 1))
-        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, k)
+        m = cv2.morphologyEx(m, cv2.MORPH_CLOSE, disc(close_px // 2))  # close_px wide, made odd
     padded = np.pad(m, 1)
     cv2.floodFill(padded, None, (0, 0), 2)  # everything reachable from outside
     return (padded[1:-1, 1:-1] != 2)

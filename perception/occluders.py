@@ -56,7 +56,7 @@ import numpy as np
 
 from perception.colour_model import ColourModel
 from perception.geometry import directed_edges, pixel_index, project
-from perception.raster import locate_pixels
+from perception.raster import disc, locate_pixels
 from perception.segmentation import SHADOW_PX, valid_depth
 from perception.support import SupportPlane
 
@@ -95,10 +95,6 @@ MIN_UNLIKE_VERTICES = 2
 UNLIKE_P = 0.5
 
 
-def _disc(radius: int) -> np.ndarray:
-    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1,) * 2)
-
-
 def _predicted_depth(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, shape) -> np.ndarray:
     """(h, w) float64 depth of the mesh's nearest face at each pixel, NaN off the mesh; ``uv``
     (N, 2) are the vertices' pixel coordinates in that (h, w) image."""
@@ -116,7 +112,7 @@ def _steps_all_round(patches: np.ndarray, n: int, depth: np.ndarray, cloth: np.n
     ``cloth`` lie within ``radius`` of it, and how many of those lie farther than the patch
     next to them (its mean depth within ``radius``) by more than ``step_m``; (n + 1,) each."""
     inside = patches > 0
-    around = cv2.dilate(patches.astype(np.float32), _disc(radius)).astype(np.int32)
+    around = cv2.dilate(patches.astype(np.float32), disc(radius)).astype(np.int32)
     ring = (around > 0) & ~inside & cloth
     k = (2 * radius + 1,) * 2
     near_sum = cv2.boxFilter(np.where(inside, depth, 0.0), -1, k, normalize=False)
@@ -189,7 +185,7 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
     # The mesh's rim vertices lie on its drawn edge, which sparse pixels may miss: the
     # prediction is carried a pixel or two beyond it.
     drawn = np.isfinite(z)
-    z = np.where(drawn, z, cv2.dilate(np.where(drawn, z, 0.0), _disc(2)))
+    z = np.where(drawn, z, cv2.dilate(np.where(drawn, z, 0.0), disc(2)))
     on_mesh = valid & (z > 0)
     if known is not None:
         on_mesh &= ~known[y0:y1:STEP_PX, x0:x1:STEP_PX]
@@ -317,9 +313,9 @@ def _standing_out(patches: np.ndarray, n: int, area: np.ndarray, depth: np.ndarr
     seen, stepped = np.where(use_far, far_seen, seen), np.where(use_far, far_stepped, stepped)
     front = (seen >= least) & (stepped >= ALL_ROUND * np.maximum(seen, 1))
     if was is not None:
-        reach = cv2.dilate(patches.astype(np.float32), _disc(FAR_RING_PX // STEP_PX)).astype(np.int32)
+        reach = cv2.dilate(patches.astype(np.float32), disc(FAR_RING_PX // STEP_PX)).astype(np.int32)
         was_near = np.bincount(reach[was], minlength=n)  # the object found before, around each patch
-        on_was = np.bincount(patches[cv2.dilate(was.view(np.uint8), _disc(FAR_RING_PX // STEP_PX)).view(bool)],
+        on_was = np.bincount(patches[cv2.dilate(was.view(np.uint8), disc(FAR_RING_PX // STEP_PX)).view(bool)],
                              minlength=n)
         again = (on_was >= 0.5 * area) & (area <= GROWN * was_near)
         front |= again & (far_seen >= least) & (far_stepped >= STILL_ROUND * np.maximum(far_seen, 1))

@@ -11,6 +11,12 @@ import numpy as np
 from perception.mesh import barycentric_2d
 
 
+def disc(radius: int) -> np.ndarray:
+    """(2 radius + 1, 2 radius + 1) uint8 disc-shaped structuring element, for growing or
+    shrinking a mask by ``radius`` pixels in every direction."""
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1,) * 2)
+
+
 def bounding_box(mask: np.ndarray, pad: int = 0):
     """(y0, y1, x0, x1) half-open box around the True pixels of ``mask``, grown by ``pad`` and
     clipped to the image; None when the mask is empty. Cheaper than np.nonzero on a full frame."""

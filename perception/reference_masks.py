@@ -36,6 +36,8 @@ from dataclasses import asdict, dataclass
 import cv2
 import numpy as np
 
+from perception.raster import disc
+
 log = logging.getLogger(__name__)
 
 
@@ -79,10 +81,6 @@ class MaskConfig:
         return asdict(self)
 
 
-def _disk(size: int) -> np.ndarray:
-    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * size + 1, 2 * size + 1))
-
-
 def skin_mask(rgb: np.ndarray) -> np.ndarray:
     """(H, W) bool: skin-coloured pixels of rgb (H, W, 3) uint8, by the classic YCrCb box
     (133 <= Cr <= 180, 77 <= Cb <= 127, Chai and Ngan 1999) with a brightness floor."""
@@ -114,7 +112,7 @@ def automatic_seed(rgb: np.ndarray, depth_m: np.ndarray, config: MaskConfig = Ma
     depth_m (H, W) float32 metres (0 or NaN = none). Returns (H, W) bool."""
     measured = np.isfinite(depth_m) & (depth_m > 0)
     candidate = measured & ~skin_mask(rgb)
-    candidate = cv2.morphologyEx(candidate.astype(np.uint8), cv2.MORPH_OPEN, _disk(config.open_px)).astype(bool)
+    candidate = cv2.morphologyEx(candidate.astype(np.uint8), cv2.MORPH_OPEN, disc(config.open_px)).astype(bool)
     seed = largest_region(candidate)
     if seed.sum() < config.min_area_px:
         raise ReferenceMaskError("no automatic seed: no region of measured, non-skin pixels is large enough; "
@@ -145,13 +143,13 @@ class ColourModel:
     @classmethod
     def learn(cls, rgb: np.ndarray, depth_m: np.ndarray, seed: np.ndarray, config: MaskConfig) -> ColourModel:
         lab = _chroma(rgb)
-        inner = cv2.erode(seed.astype(np.uint8), _disk(config.edge_px)).astype(bool)
+        inner = cv2.erode(seed.astype(np.uint8), disc(config.edge_px)).astype(bool)
         if inner.sum() < 10:
             inner = seed
         band = depth_band(depth_m, seed, config.depth_margin_m)
-        outer = band & ~cv2.dilate(seed.astype(np.uint8), _disk(config.edge_px)).astype(bool)
+        outer = band & ~cv2.dilate(seed.astype(np.uint8), disc(config.edge_px)).astype(bool)
         if outer.sum() < 10:  # nothing else at the object's depth: contrast it with everything else
-            outer = ~cv2.dilate(seed.astype(np.uint8), _disk(config.edge_px)).astype(bool)
+            outer = ~cv2.dilate(seed.astype(np.uint8), disc(config.edge_px)).astype(bool)
         return cls(lab[inner], lab[outer])
 
     def is_object(self, rgb: np.ndarray, where: np.ndarray) -> np.ndarray:
@@ -191,7 +189,7 @@ def depth_steps(depth_m: np.ndarray, step_m: float) -> np.ndarray:
 def grow_along_surface(core: np.ndarray, allowed: np.ndarray, depth_m: np.ndarray, config: MaskConfig) -> np.ndarray:
     """(H, W) bool: ``core`` and the pixels of ``allowed`` within ``grow_px`` of it that join it
     without crossing a depth step (4-connected, so a diagonal of noise does not bridge a seam)."""
-    reach = cv2.dilate(core.astype(np.uint8), _disk(config.grow_px)).astype(bool)
+    reach = cv2.dilate(core.astype(np.uint8), disc(config.grow_px)).astype(bool)
     smooth = allowed & reach & ~depth_steps(depth_m, config.depth_step_m)
     region = smooth | core
     n, labels = cv2.connectedComponents(region.astype(np.uint8), connectivity=4)
@@ -204,12 +202,12 @@ def grow_along_surface(core: np.ndarray, allowed: np.ndarray, depth_m: np.ndarra
 def next_mask(rgb: np.ndarray, depth_m: np.ndarray, previous: np.ndarray, model: ColourModel,
               config: MaskConfig) -> np.ndarray:
     """The object's mask in a frame, given the previous frame's (module docstring, step 3)."""
-    near = cv2.dilate(previous.astype(np.uint8), _disk(config.max_motion_px)).astype(bool)
+    near = cv2.dilate(previous.astype(np.uint8), disc(config.max_motion_px)).astype(bool)
     where = depth_band(depth_m, previous, config.depth_margin_m) & near
     core = model.is_object(rgb, where)
-    core = cv2.morphologyEx(core.astype(np.uint8), cv2.MORPH_OPEN, _disk(config.open_px)).astype(bool)
+    core = cv2.morphologyEx(core.astype(np.uint8), cv2.MORPH_OPEN, disc(config.open_px)).astype(bool)
     mask = grow_along_surface(core, where & ~skin_mask(rgb), depth_m, config).astype(np.uint8)
-    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, _disk(config.close_px)) & near.astype(np.uint8)
+    mask = cv2.morphologyEx(mask, cv2.MORPH_CLOSE, disc(config.close_px)) & near.astype(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     keep = np.zeros(n, bool)
     keep[1:] = stats[1:, cv2.CC_STAT_AREA] >= config.min_area_px

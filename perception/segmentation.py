@@ -23,7 +23,7 @@ import numpy as np
 
 from perception.colour_model import ColourModel
 from perception.geometry import backproject
-from perception.raster import bounding_box
+from perception.raster import bounding_box, disc
 
 log = logging.getLogger(__name__)
 
@@ -349,8 +349,7 @@ def _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg):
     keep = (overlap >= np.maximum(cfg.min_region_px // 3, 0.2 * area)) & (area >= cfg.min_region_px)
     if hidden_mask is not None:
         h, w = candidate.shape
-        near_hidden = cv2.dilate(hidden_mask[y0:y0 + h, x0:x0 + w].astype(np.uint8),
-                                 cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * cfg.search_margin_px + 1,) * 2)) > 0
+        near_hidden = cv2.dilate(hidden_mask[y0:y0 + h, x0:x0 + w].astype(np.uint8), disc(cfg.search_margin_px)) > 0
         keep |= (np.bincount(labels[near_hidden], minlength=n) >= cfg.min_region_px // 3) & (area >= cfg.min_region_px)
     keep[0] = False
     region = _grow(keep[labels], candidate)

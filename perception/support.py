@@ -25,6 +25,7 @@ import cv2
 import numpy as np
 
 from perception.geometry import backproject
+from perception.raster import disc
 from perception.segmentation import fit_plane_ransac, valid_depth
 
 #: The ring's inner edge lies this far outside the object's mask (pixels): the outline's
@@ -72,8 +73,7 @@ class SupportPlane:
 
 
 def _grown(mask: np.ndarray, radius: int) -> np.ndarray:
-    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1,) * 2)
-    return cv2.dilate(mask.view(np.uint8), disc).view(bool)
+    return cv2.dilate(mask.view(np.uint8), disc(radius)).view(bool)
 
 
 def fit_support(depth_m: np.ndarray, mask: np.ndarray, K: np.ndarray, seed: int = 0) -> SupportPlane | None:
