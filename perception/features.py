@@ -25,6 +25,7 @@ from scipy.spatial import cKDTree
 
 from perception.geometry import pixel_index, project
 from perception.raster import bounding_box, locate_pixels
+from perception.trackable import trackable
 from perception.visibility import FACE_OUT_OF_VIEW, FACE_VISIBLE
 
 log = logging.getLogger(__name__)
@@ -329,8 +330,10 @@ class KLTCorrespondences:
 
     def _seed(self, grey, mask, V, faces, K, count: int, keep_away: np.ndarray | None = None) -> _TrackedPoints:
         """Find and bind up to ``count`` new corners in ``mask``, 5 px or more from ``keep_away``
-        (P, 2); ``grey`` becomes their reference image."""
-        allowed = mask.astype(np.uint8) * 255
+        (P, 2); ``grey`` becomes their reference image. Only where the texture stands above the
+        image's noise (``perception.trackable``): corners of noise on smooth shading would be
+        followed with the shading, not with the material."""
+        allowed = trackable(grey, mask, LK_PARAMS["winSize"][0]).astype(np.uint8) * 255
         if keep_away is not None:
             for u, v in np.rint(keep_away).astype(int):
                 cv2.circle(allowed, (int(u), int(v)), 5, 0, -1)
