@@ -4,7 +4,7 @@ holds and where, the material point hanging lowest and where), the stretch term,
 tethers (no point of the cloth farther from the held one than along the cloth) and, on a
 printed cloth, its first frame's texture found again in each frame.
 
-    python benchmarks/lift_tracking.py --seeds 2 4 22 [--state flat] [--markdown OUT.md]
+    python benchmarks/lift_tracking.py --seeds 2 4 22 [--state flat] [--variants I ...] [--markdown OUT.md]
 
 For each seed: the laundry scene of the unfold trials (``sim.laundry``, the "room" view), the
 first gripper grasps the true corner nearest the camera, lifts it straight up at 0.3 m/s until
@@ -33,6 +33,7 @@ from tqdm import tqdm
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from perception.geometry import invert_transform, transform_points  # noqa: E402
+from perception.trackable import MIN_TEXTURE_SNR  # noqa: E402
 from perception.tracker import MeshTracker  # noqa: E402
 from sim.ground_truth import bind_to_surface, surface_points, vertex_errors  # noqa: E402
 
@@ -43,7 +44,9 @@ from sim.ground_truth import bind_to_surface, surface_points, vertex_errors  # n
 #: it keeps every vertex within reach of the held points along the cloth (``tether``,
 #: ``perception.tether``), which all but the last two variants go without; and on a printed
 #: cloth it finds its first frame's texture again in each frame (``anchor_points``,
-#: ``perception.anchors``), which all but the last go without.
+#: ``perception.anchors``), which all but the last two go without; the last lays KLT points only
+#: where the image has texture above its noise (``perception.trackable``), as the tracker does
+#: by default and the unfold trials' does not.
 NO_ANCHORS = {"anchor_points": 0}
 VARIANTS = (
     ("without the stretch term", {**NO_ANCHORS, "lambda_l": 0.0}, False, False, False),
@@ -58,6 +61,8 @@ VARIANTS = (
     ("+ stretch, background, hold, lowest point", {**NO_ANCHORS, "tether": False}, True, True, True),
     ("+ stretch, background, hold, lowest point, tethers", NO_ANCHORS, True, True, True),
     ("+ stretch, background, hold, lowest point, tethers, texture anchors (the unfold trials')", {}, True, True, True),
+    ("the unfold trials', KLT points only on texture above the image's noise (the tracker's default)",
+     {"min_texture_snr": MIN_TEXTURE_SNR}, True, True, True),
 )
 
 
@@ -159,14 +164,19 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", type=int, nargs="+", default=[2, 4, 22])
     p.add_argument("--state", default="flat", help="initial state forced on every seed (default flat; '' for drawn)")
     p.add_argument("--markdown", type=Path, help="also write the table there")
+    p.add_argument("--variants", type=int, nargs="+", metavar="I",
+                   help=f"run only these trackers, by position in the list (1-{len(VARIANTS)}; default all)")
     args = p.parse_args(argv)
+    if any(not 1 <= i <= len(VARIANTS) for i in args.variants or ()):
+        p.error(f"--variants: positions run from 1 to {len(VARIANTS)}, got {args.variants}")
+    variants = [VARIANTS[i - 1] for i in args.variants] if args.variants else VARIANTS
     rows = ["| seed | cloth | tracker | error during the lift mm | while hanging mm | hanging: off the cloth's "
             "surface mm | held corner mm | other corners mm | frames flagged lost | ms/frame |",
             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-    results = {name: [] for name, *_ in VARIANTS}
+    results = {name: [] for name, *_ in variants}
     for seed in tqdm(args.seeds, desc="lifts", unit="seed"):
         lift = record_lift(seed, args.state or None)
-        for name, changes, background, hold, lowest in VARIANTS:
+        for name, changes, background, hold, lowest in variants:
             r = track(lift, changes, background, hold, lowest)
             results[name].append(r)
             rows.append(f"| {seed} | {lift['describe'].split(': ', 1)[1]} | {name} | {r['lift_mm']:.0f} | "

@@ -25,7 +25,7 @@ from scipy.spatial import cKDTree
 
 from perception.geometry import pixel_index, project
 from perception.raster import bounding_box, locate_pixels
-from perception.trackable import trackable
+from perception.trackable import MIN_TEXTURE_SNR, trackable
 from perception.visibility import FACE_OUT_OF_VIEW, FACE_VISIBLE
 
 log = logging.getLogger(__name__)
@@ -308,9 +308,10 @@ class KLTCorrespondences:
     it costs about as much as the frame's own optical flow.
     """
 
-    def __init__(self, max_features: int, fb_max_px: float = FB_MAX_PX, max_references: int = 4,
-                 revive_per_frame: int = 100, revive_every: int = 3):
+    def __init__(self, max_features: int, min_texture_snr: float = MIN_TEXTURE_SNR, fb_max_px: float = FB_MAX_PX,
+                 max_references: int = 4, revive_per_frame: int = 100, revive_every: int = 3):
         self.max_features = int(max_features)
+        self.min_texture_snr = float(min_texture_snr)
         self.fb_max_px = fb_max_px
         self.max_references = int(max_references)
         self.revive_per_frame = int(revive_per_frame)
@@ -330,10 +331,12 @@ class KLTCorrespondences:
 
     def _seed(self, grey, mask, V, faces, K, count: int, keep_away: np.ndarray | None = None) -> _TrackedPoints:
         """Find and bind up to ``count`` new corners in ``mask``, 5 px or more from ``keep_away``
-        (P, 2); ``grey`` becomes their reference image. Only where the texture stands above the
-        image's noise (``perception.trackable``): corners of noise on smooth shading would be
-        followed with the shading, not with the material."""
-        allowed = trackable(grey, mask, LK_PARAMS["winSize"][0]).astype(np.uint8) * 255
+        (P, 2); ``grey`` becomes their reference image. Only where the texture stands
+        ``min_texture_snr`` times above the image's noise (``perception.trackable``): corners of
+        noise on smooth shading would be followed with the shading, not with the material."""
+        if self.min_texture_snr > 0:
+            mask = trackable(grey, mask, LK_PARAMS["winSize"][0], self.min_texture_snr)
+        allowed = mask.astype(np.uint8) * 255
         if keep_away is not None:
             for u, v in np.rint(keep_away).astype(int):
                 cv2.circle(allowed, (int(u), int(v)), 5, 0, -1)
@@ -477,9 +480,11 @@ class CombinedCorrespondences:
         self.points.update(grey, mask, V, faces, K)
 
 
-def make_correspondences(kind: str, max_features: int, gate_px: float, keep_fraction: float, match_previous: bool):
-    """The correspondence source for a feature kind (see FEATURE_KINDS)."""
+def make_correspondences(kind: str, max_features: int, gate_px: float, keep_fraction: float, match_previous: bool,
+                         min_texture_snr: float = MIN_TEXTURE_SNR):
+    """The correspondence source for a feature kind (see FEATURE_KINDS); ``min_texture_snr``
+    is KLT's (``KLTCorrespondences``)."""
     kind = resolve_kind(kind)
     if kind == "klt":
-        return KLTCorrespondences(max_features)
+        return KLTCorrespondences(max_features, min_texture_snr)
     return DescriptorCorrespondences(kind, max_features, gate_px, keep_fraction, match_previous)

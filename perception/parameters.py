@@ -77,6 +77,7 @@ PARAMETER_RANGES = {
     "min_predicted_decrease": Range(0.0, 1.0),
     "max_features": Range(1, 2000),
     "min_descriptor_features": Range(0, 2000),
+    "min_texture_snr": Range(0.0, 1000.0),
     "anchor_points": Range(0, 2000),
     "match_gate_px": Range(0.0, 1000.0, lo_open=True),
     "match_keep_fraction": Range(0.0, 1.0, lo_open=True),

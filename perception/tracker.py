@@ -84,6 +84,7 @@ from perception.segmentation import (
 from perception.solver import METHODS, SemiImplicitSolver
 from perception.support import SupportPlane, fit_support
 from perception.tether import Tethers
+from perception.trackable import MIN_TEXTURE_SNR
 from perception.visibility import NO_DEPTH, OCCLUDED, VISIBLE, classify_vertices, face_states
 
 log = logging.getLogger(__name__)
@@ -160,6 +161,10 @@ class TrackerConfig:
     max_features : features detected per frame
     min_descriptor_features : when the first frame shows fewer descriptor features on the
         object than this (a plain or faintly textured object), KLT points track it as well
+    min_texture_snr : KLT points are laid only where the image's texture has this many times
+        the gradient energy its own noise would give (``perception.trackable``); on a plain
+        cloth the strongest corners are noise over shading, which KLT follows with the light,
+        not with the material (0: wherever Shi-Tomasi finds a corner)
     match_gate_px : a match must lie within this distance of its predicted location
     match_keep_fraction : the paper keeps the best half of the matches
     match_previous_frame : also match the previous frame's features (bound through the estimate)
@@ -232,6 +237,7 @@ class TrackerConfig:
     features: str = field(default="auto", metadata={"choices": FEATURE_KINDS})
     max_features: int = 500
     min_descriptor_features: int = 60
+    min_texture_snr: float = MIN_TEXTURE_SNR
     match_gate_px: float = 40.0
     match_keep_fraction: float = 0.5
     match_previous_frame: bool = True
@@ -374,8 +380,8 @@ class MeshTracker:
         if self.initialised:
             if (config.alpha, config.solver, config.cg_iterations) != (old.alpha, old.solver, old.cg_iterations):
                 self._solver = self._make_solver(self.mesh)
-            if (config.features, config.max_features, config.anchor_points) != \
-                    (old.features, old.max_features, old.anchor_points):
+            if (config.features, config.max_features, config.anchor_points, config.min_texture_snr) != \
+                    (old.features, old.max_features, old.anchor_points, old.min_texture_snr):
                 log.warning("feature settings change at the next initialise")
 
     # -- checks --------------------------------------------------------------------------
@@ -474,11 +480,12 @@ class MeshTracker:
         feature_mask = self._feature_mask(obs.mask)
         if cfg.use_correspondence:
             self._corr = make_correspondences(cfg.features, cfg.max_features, cfg.match_gate_px,
-                                              cfg.match_keep_fraction, cfg.match_previous_frame)
+                                              cfg.match_keep_fraction, cfg.match_previous_frame, cfg.min_texture_snr)
             self._corr.initialise(obs.grey, feature_mask, V, mesh.faces, obs.K)
             if isinstance(self._corr, DescriptorCorrespondences) and self._corr.n_model < cfg.min_descriptor_features:
                 log.info("%d descriptor features on the object: KLT points track it as well", self._corr.n_model)
-                self._corr = CombinedCorrespondences(self._corr, KLTCorrespondences(cfg.max_features))
+                self._corr = CombinedCorrespondences(self._corr, KLTCorrespondences(cfg.max_features,
+                                                                                  cfg.min_texture_snr))
                 self._corr.points.initialise(obs.grey, feature_mask, V, mesh.faces, obs.K)
         self.last_observation = obs
         self._memory.push(self._memory.small(obs.grey))

@@ -67,6 +67,9 @@ def test_klt_seeds_no_points_on_noise_over_shading():
     assert klt.n_model == 0
     klt.initialise(noisy(checker(), 2.0), mask, V, faces, cam.K)
     assert klt.n_model > 100
+    anywhere = KLTCorrespondences(300, min_texture_snr=0.0)  # the unfold trials' choice: every corner found
+    anywhere.initialise(noisy(shading(), 2.0), mask, V, faces, cam.K)
+    assert anywhere.n_model > 100
 
 
 CAM = CameraInfo.from_fov(640, 480, np.deg2rad(45))
