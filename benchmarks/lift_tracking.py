@@ -42,9 +42,9 @@ from sim.ground_truth import bind_to_surface, surface_points, vertex_errors  # n
 #: That tracker measures depth along the surface's normal, has the fold test
 #: (``self_occlusion``) and the outside term (``lambda_o``), two variants go without them; and
 #: it keeps every vertex within reach of the held points along the cloth (``tether``,
-#: ``perception.tether``), which all but the last two variants go without; and on a printed
+#: ``perception.tether``), which the third to seventh variants go without; and on a printed
 #: cloth it finds its first frame's texture again in each frame (``anchor_points``,
-#: ``perception.anchors``), which all but the last two go without; the last lays KLT points only
+#: ``perception.anchors``), which the first eight go without; the last lays KLT points only
 #: where the image has texture above its noise (``perception.trackable``), as the tracker does
 #: by default and the unfold trials' does not.
 NO_ANCHORS = {"anchor_points": 0}

@@ -275,7 +275,7 @@ class TrackerConfig:
                 raise ValueError(f"TrackerConfig.{name}: expected a positive number, got {v!r}")
         for name in ("spacing_m", "lambda_c", "lambda_d", "lambda_b", "lambda_m", "lambda_l", "lambda_h", "lambda_o",
                      "tether_slack", "velocity_prediction",
-                     "min_predicted_decrease"):
+                     "min_predicted_decrease", "min_texture_snr"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a non-negative number, got {v!r}")

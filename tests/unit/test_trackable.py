@@ -39,6 +39,35 @@ def test_the_noise_is_measured_through_shading_and_print(sigma):
         assert noise_sigma(noisy(clean, sigma)) == pytest.approx(sigma, rel=0.2)
 
 
+def test_the_noise_is_the_objects_not_the_background_around_it():
+    """An L-shaped cloth fills half its bounding box; the wall around it is clipped white
+    (no noise). Measured over the box, the noise read half of what it is."""
+    image = np.full(SHAPE, 255.0)
+    mask = np.zeros(SHAPE, bool)
+    mask[20:220, 20:90] = True
+    mask[150:220, 20:300] = True
+    image[mask] = 120.0
+    grey = noisy(image, 2.0)
+    assert noise_sigma(grey, mask) == pytest.approx(2.0, rel=0.1)
+    inner = np.zeros(SHAPE, bool)  # away from the outline, whose corners are real ones
+    inner[30:210, 30:80] = True
+    inner[160:210, 30:290] = True
+    assert not (trackable(grey, mask, 15) & inner).any()  # nothing but noise on the cloth
+
+
+def test_the_noise_is_measured_between_whole_grey_levels():
+    """On 8-bit images the median of the filter's integer responses moves in steps of a
+    quarter of a grey level of noise; interpolated within its step, it follows the noise."""
+    estimates = [noise_sigma(noisy(np.full(SHAPE, 128.0), s)) for s in (0.9, 1.0, 1.1, 1.2)]
+    assert np.all(np.diff(estimates) > 0.05), estimates
+    assert estimates == pytest.approx([0.9, 1.0, 1.1, 1.2], rel=0.1)
+
+
+def test_only_8_bit_images_are_measured():
+    with pytest.raises(ValueError, match="uint8"):
+        noise_sigma(np.zeros(SHAPE, np.float32))
+
+
 def test_noise_alone_scores_about_one_and_print_far_above():
     sigma = 2.0
     snr_noise = texture_snr(noisy(np.full(SHAPE, 128.0), sigma), 15, sigma)[20:-20, 20:-20]
@@ -54,6 +83,8 @@ def test_smooth_shading_under_noise_is_not_trackable_but_print_is():
     assert trackable(noisy(shading(), 2.0), mask, 15).mean() < 0.002
     assert trackable(noisy(checker(), 2.0), mask, 15)[mask].mean() > 0.95
     assert not trackable(noisy(checker(), 2.0), np.zeros(SHAPE, bool), 15).any()  # nothing asked for
+    weave = noisy(checker(cell=3), 2.0)  # a fine weave raises the noise read, yet stands out
+    assert trackable(weave, mask, 15)[mask].mean() > 0.95
 
 
 def test_klt_seeds_no_points_on_noise_over_shading():
@@ -70,6 +101,25 @@ def test_klt_seeds_no_points_on_noise_over_shading():
     anywhere = KLTCorrespondences(300, min_texture_snr=0.0)  # the unfold trials' choice: every corner found
     anywhere.initialise(noisy(shading(), 2.0), mask, V, faces, cam.K)
     assert anywhere.n_model > 100
+
+
+@pytest.mark.parametrize("features", ["klt", "sift"])
+def test_the_trackers_texture_floor_reaches_its_klt_points(features):
+    """With few descriptor features KLT points are added (``min_descriptor_features``); either
+    way they follow ``TrackerConfig.min_texture_snr``."""
+    tex = texture(np.random.default_rng(7), textured=False)
+    light = shading((480, 640), 0.6, 1.0)[..., None]
+    f = frame_of(plane_points(UV, CENTRE, SIZE), UV, FACES, tex, CAM, SIZE, noise_m=0.002)
+    f = dataclasses.replace(f, rgb=noisy(f.rgb * light, 2.0))
+
+    def klt_points(config):
+        tracker = MeshTracker(config)
+        tracker.initialise(f)
+        corr = tracker._corr
+        return getattr(corr, "points", corr).n_model
+
+    assert klt_points(TrackerConfig(features=features)) <= 5  # the sheet's own corners at most
+    assert klt_points(TrackerConfig(features=features, min_texture_snr=0.0)) > 100
 
 
 CAM = CameraInfo.from_fov(640, 480, np.deg2rad(45))
