@@ -61,9 +61,10 @@ def _grouped_median(values: np.ndarray) -> float:
     """The median of non-negative integers, interpolated within its unit bin: the plain
     median of integer responses moves in whole steps, a quarter of a grey level of noise."""
     counts = np.bincount(values)
-    below = np.cumsum(counts) - counts  # values under each bin
-    k = int(np.searchsorted(np.cumsum(counts), len(values) / 2.0))
-    return max(0.0, k - 0.5 + (len(values) / 2.0 - below[k]) / counts[k])
+    upto = np.cumsum(counts)  # values in each bin and under it
+    half = len(values) / 2.0
+    k = int(np.searchsorted(upto, half))
+    return max(0.0, k - 0.5 + (half - (upto[k] - counts[k])) / counts[k])
 
 
 def texture_snr(grey: np.ndarray, window: int, sigma: float) -> np.ndarray:
