@@ -204,6 +204,8 @@ def set_array(fields, name, values, dtype):
 
 CASES = [
     (m.StatusRequest, lambda f: f.update(extra=1), r"^StatusRequest: unknown field 'extra'$"),
+    (m.StatusRequest, lambda f: f.update({b"request_id": f.pop("request_id", 0)}),
+     r"^StatusRequest: field names are str, got a bytes key b'request_id'$"),
     (m.Heartbeat, lambda f: f.pop("source"), r"^Heartbeat: missing required field 'source'$"),
     (m.StatusRequest, lambda f: f.update(request_id="7"), r"^StatusRequest\.request_id: expected an integer, got str$"),
     (m.StatusRequest, lambda f: f.update(request_id=True), r"StatusRequest\.request_id: expected an integer, got bool"),
