@@ -13,13 +13,16 @@ from sim.cloth_mesh import rectangle_cloth
 from sim.grasp_execution import move_grippers
 from sim.laundry import LaundryScene, laundry_spec
 from sim.laundry.controller import (
+    CLOSE_TIP_M,
     MAX_REACH_OVER_MATERIAL,
     MAX_TIP_OFFSET_M,
     MIN_CORNER_VISIBLE,
     MIN_EDGE_STRAIGHTNESS,
     NEAR_BEST_SCORE,
+    closely_confirmed,
     corner_to_lift_first,
     edge_straightness,
+    seen_enough,
     stretchable_corner,
     why_not_confirmed,
 )
@@ -143,11 +146,32 @@ def test_a_corner_the_camera_did_not_see_is_never_grasped_blind():
 
     plan, _, vertex, details = _second_plan_on(est, held, (unseen, second))
     assert plan is second.plan and vertex == second.plan.vertex_id and details["visible"] == 1.0
-    barely = dataclasses.replace(second, visible=MIN_CORNER_VISIBLE / 2)
+    barely = dataclasses.replace(second, visible=MIN_CORNER_VISIBLE / 2, tip_offset_m=CLOSE_TIP_M + 0.01)
     plan, distance, vertex, details = _second_plan_on(est, held, (unseen, barely))
     assert plan is None and distance is None and vertex == -1
-    # neither seen: the planner's first, as ever, and nothing grasped
-    assert details["reason"] == f"adjacent corner not seen (visibility 0.00 < {MIN_CORNER_VISIBLE:g}): not grasped blind"
+    # neither seen enough: the planner's first, as ever, and nothing grasped
+    assert details["reason"] == (f"adjacent corner not seen (visibility 0.00 < {MIN_CORNER_VISIBLE:g}, no measured "
+                                 f"tip within {100 * CLOSE_TIP_M:g} cm): not grasped blind")
+    # little of it seen, but the measured surface ends where the estimate's corner is: taken
+    closely = dataclasses.replace(barely, tip_offset_m=CLOSE_TIP_M)
+    assert seen_enough(closely) and not seen_enough(barely) and not seen_enough(unseen)
+    plan, _, vertex, details = _second_plan_on(est, held, (unseen, closely))
+    assert plan is closely.plan and details["visible"] == round(MIN_CORNER_VISIBLE / 2, 3)
+    # nothing of it seen: no tip can be found from it, and a tip reported all the same is not trusted
+    assert not seen_enough(dataclasses.replace(closely, visible=0.0))
+
+
+def test_a_corner_the_frame_confirms_closely_comes_first():
+    est = towel_estimate()
+    held = int(GraspPlanner().corners(est)[0])
+    held_at = est.vertices[held]
+    first, second = adjacent_corners(est, held).candidates
+    loose, close = confirmed(first, MAX_TIP_OFFSET_M - 0.01), confirmed(second, CLOSE_TIP_M - 0.005)
+    assert closely_confirmed(close) and not closely_confirmed(loose) and not why_not_confirmed(loose, held_at)
+    assert stretchable_corner((loose, close), est.canonical, held, held_at) is close  # though ranked second
+    # both within the grasp's tolerance: a few millimetres say nothing, the planner's order decides
+    both = (confirmed(first, CLOSE_TIP_M - 0.001), close)
+    assert stretchable_corner(both, est.canonical, held, held_at) is both[0]
 
 
 def test_a_corner_is_grasped_only_where_the_measured_why_not_confirmed_it():
