@@ -15,9 +15,16 @@ pytest.importorskip("pybullet")
 pytestmark = [pytest.mark.slow, pytest.mark.timeout(400)]
 
 
-@pytest.mark.parametrize("arm", ["drawn", "panda"])
-def test_an_unfold_trial_tracks_the_lift_and_is_judged_by_ground_truth(tmp_path, arm):
-    done = subprocess.run([sys.executable, "-m", "launch_scripts.trials", "--task", "unfold", "--seeds", "2",
+#: (arm, seed, judged): with the drawn arms seed 22 (a flat printed towel) goes on to a second
+#: grasp that holds cloth, so its verdict is checked against ground truth; with the Panda seed 2
+#: checks the arm's reach of the first corner and of the lift (its second corner depends on the
+#: estimate, and may be declined).
+CASES = [("drawn", 22, True), ("panda", 2, False)]
+
+
+@pytest.mark.parametrize("arm, seed, judged", CASES)
+def test_an_unfold_trial_tracks_the_lift_and_is_judged_by_ground_truth(tmp_path, arm, seed, judged):
+    done = subprocess.run([sys.executable, "-m", "launch_scripts.trials", "--task", "unfold", "--seeds", str(seed),
                            "--arm", arm, "--json", str(tmp_path / "report.json"), "--markdown",
                            str(tmp_path / "summary.md"), "--pictures", str(tmp_path), "--quiet"],
                           check=False, capture_output=True, text=True, timeout=380)
@@ -26,7 +33,7 @@ def test_an_unfold_trial_tracks_the_lift_and_is_judged_by_ground_truth(tmp_path,
     (record,) = report["trials"]
     assert record["task"] == "unfold" and record["regrasp"] == "adjacent" and record["arm"] == arm
     assert not record["failure"].startswith("error"), record["failure"]
-    # the Panda reaches seed 2's first corner and the lift's top (the second corner depends on the estimate)
+    # the arm reaches the first corner and the lift's top (the second corner depends on the estimate)
     assert not record["failure"].startswith(("unreachable: the arm cannot bring its gripper to the first",
                                              "unreachable: the arm cannot bring its gripper to the lift")), \
         record["failure"]
@@ -35,13 +42,15 @@ def test_an_unfold_trial_tracks_the_lift_and_is_judged_by_ground_truth(tmp_path,
     assert phases["lift"] >= 20 and phases["hang"] >= 20
     assert record["tracking"]["frames_tracked"] >= phases["lift"] + phases["hang"]
     assert record["first_grasp"]["held"] and record["corner_success"] == record["first_grasp"]["at_corner"]
-    assert (tmp_path / "unfold_seed2_adjacent.png").stat().st_size > 10_000
+    assert (tmp_path / f"unfold_seed{seed}_adjacent.png").stat().st_size > 10_000
     assert "unfolding by two adjacent corners" in (tmp_path / "summary.md").read_text()
+    if judged:  # this seed's trial goes on to the verdict: a change that stops it short fails here
+        assert "unfold" in record and record["second_grasp"]["held"], record["failure"]
     if "unfold" not in record:  # no second grasp: the trial says why, and it is no success
         assert not record["success"] and record["failure"]
         return
     # the verdict agrees with the true corners of the seed's cloth
-    spec = laundry_spec(2)
+    spec = laundry_spec(seed)
     held = [record["first_grasp"], record["second_grasp"]]
     if not all(g["held"] for g in held):
         assert not record["success"] and record["failure"].startswith("missed")

@@ -1,6 +1,7 @@
 """Request/reply on loopback: replies, timeouts against a dead peer, recovery, and a server
 that answers every malformed or failing request with an ErrorReply and keeps serving."""
 
+import dataclasses
 import re
 import threading
 import time
@@ -153,11 +154,16 @@ def test_a_lost_reply_is_retried():
         calls.append(request.request_id)
         if len(calls) == 1:
             time.sleep(0.5)  # the client gives up on this attempt and resends
-        return status(request)
+        return dataclasses.replace(status(request), message=f"call {len(calls)}")
 
     with Serving({m.StatusRequest: slow_once}) as srv, RequestClient(srv.endpoint, timeout_s=0.3, attempts=4) as client:
-        assert client.request(m.StatusRequest(request_id=6)).request_id == 6
+        reply = client.request(m.StatusRequest(request_id=6))
+        assert reply.request_id == 6 and reply.message != "call 1"  # a later attempt's reply
         assert len(calls) >= 2
+        # the first attempt's late reply went to the socket that was given up: the next request gets its own
+        time.sleep(0.4)
+        reply = client.request(m.StatusRequest(request_id=7))
+        assert reply.request_id == 7 and reply.message == f"call {len(calls)}"
 
 
 def test_bad_arguments_are_named():

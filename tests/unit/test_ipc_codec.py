@@ -77,6 +77,39 @@ def test_round_trip(cls, inline_max_bytes):
     assert_same(out, decode(encode(out)))
 
 
+def _is_default(field: dataclasses.Field, value) -> bool:
+    if field.default is not dataclasses.MISSING:
+        default = field.default
+    elif field.default_factory is not dataclasses.MISSING:
+        default = field.default_factory()
+    else:
+        return False
+    if isinstance(value, np.ndarray) or isinstance(default, np.ndarray):
+        return isinstance(value, np.ndarray) and isinstance(default, np.ndarray) and np.array_equal(value, default)
+    return type(value) is type(default) and value == default
+
+
+def test_every_field_travels_with_a_value_other_than_its_default():
+    """The decoder fills a missing field with its default, so a field the encoder dropped would
+    still round-trip where the example holds the default: here every field holds another value."""
+    estimate = EXAMPLES[m.MeshEstimate]
+    changed = {
+        m.CameraInfo: {"frame_id": "left_ir_optical_frame"},
+        m.MeshEstimate: {"lost": True, "frame_id": "left_ir_optical_frame"},
+        m.GraspPlan: {"frame_id": "left_ir_optical_frame"},
+        m.AdjacentCorner: {"tip_offset_m": 0.021},
+        m.AdjacentCornersRequest: {"max_candidates": 5, "estimate": estimate, "even_if_lost": True},
+        m.AdjacentCornersReply: {"held_vertex": 17},
+        m.StatusReply: {"lost_streak": 4},
+        m.Heartbeat: {"period_s": 0.25},
+    }
+    for cls, msg in EXAMPLES.items():
+        msg = dataclasses.replace(msg, **changed.get(cls, {}))
+        left = [f.name for f in dataclasses.fields(cls) if _is_default(f, getattr(msg, f.name))]
+        assert not left, f"{cls.__name__}: {left} hold their defaults; give them other values above"
+        assert_same(without_nan_depth(msg), decode(encode(msg)))
+
+
 def test_status_reply_nil_measurements_travel_as_nil():
     fields = header(encode(m.StatusReply()))["fields"]
     for name in ("frame_age_s", "latency_ms_median", "latency_ms_p99", "tracking_ms_median", "confidence"):

@@ -63,7 +63,9 @@ def test_no_plane_is_claimed_for_an_object_held_up_in_a_room():
     assert fit_support(depth, bar, K) is None
     # A wall 2.5 m away is the support of what hangs in front of it.
     depth[~held] = 2.5
-    assert fit_support(depth, held, K) is not None
+    wall = fit_support(depth, held, K)
+    assert wall is not None  # the wall, facing the camera 2.5 m away, not the bar's own plane at 1 m
+    assert wall.normal[2] < -0.999 and abs(wall.offset - 2.5) < 0.01  # normal towards the camera: -z
     # Nor is a plane the object lies behind (a frame in front of it), nor one without depth.
     behind = np.full((240, 320), 2.5, np.float32)  # a wall with the bar seen through a hole in it
     behind[bar] = 2.7

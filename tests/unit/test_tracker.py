@@ -222,7 +222,9 @@ def test_estimate_contents(tex):
     a, b, c = (e.vertices[e.faces[:, i]] for i in range(3))
     assert np.all(np.cross(b - a, c - a)[:, 2] < 0)
     assert set(e.energies) >= {"smoothness", "depth", "boundary", "total"}
-    assert 0.0 <= e.confidence <= 1.0 and e.timing_ms > 0
+    assert e.timing_ms > 0
+    # laid on a flat printed plane in full view: the first estimate vouches for itself
+    assert e.confidence > 0.9 and not e.lost and e.visible.mean() > 0.95
 
 
 def test_lost_when_object_disappears(tex):
