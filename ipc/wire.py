@@ -396,7 +396,7 @@ class Message(Spec):
         if not isinstance(obj, dict):
             raise ProtocolError(f"{where}: expected a map of fields, got {type(obj).__name__}")
         for name in obj:
-            if not isinstance(name, str):  # a key packed as bin (or a number) names no field, whatever it spells
+            if not isinstance(name, str):  # a key packed as bin names no field, whatever it spells
                 raise ProtocolError(f"{where}: field names are str, got a {type(name).__name__} key {_short(name)}")
             if name not in self.fields:
                 raise ProtocolError(f"{where}: unknown field {_short(name)}")

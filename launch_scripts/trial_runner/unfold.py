@@ -197,10 +197,15 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
             return None, None, -1, {"reason": "the planner found no adjacent corner on the estimate's outline"}
         seen = {"visible": round(best.visible, 3), "n_candidates": len(reply.candidates),
                 "tip_offset_m": None if best.tip_offset_m is None else round(best.tip_offset_m, 4)}
-        if not seen_enough(best):  # nothing seen confirms the estimate's corner
-            return None, None, -1, {"reason": f"adjacent corner not seen (visibility {best.visible:.2f} < "
-                                              f"{MIN_CORNER_VISIBLE:g}, no measured tip within "
-                                              f"{100 * CLOSE_TIP_M:g} cm): not grasped blind", **seen}
+        if not seen_enough(best):  # too little of it seen, and no tip close to it to confirm it
+            if best.visible == 0:
+                why = "nothing around it seen"
+            elif best.tip_offset_m is None:
+                why = f"visibility {best.visible:.2f} < {MIN_CORNER_VISIBLE:g}, no measured tip"
+            else:
+                why = (f"visibility {best.visible:.2f} < {MIN_CORNER_VISIBLE:g}, its measured tip "
+                       f"{100 * best.tip_offset_m:.1f} cm away, over {100 * CLOSE_TIP_M:g} cm")
+            return None, None, -1, {"reason": f"adjacent corner not seen ({why}): not grasped blind", **seen}
         unconfirmed = why_not_confirmed(best, held_cam)
         if unconfirmed:
             return None, None, -1, {"reason": f"adjacent corner not confirmed by the measured surface ({unconfirmed}): "

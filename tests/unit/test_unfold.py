@@ -150,8 +150,14 @@ def test_a_corner_the_camera_did_not_see_is_never_grasped_blind():
     plan, distance, vertex, details = _second_plan_on(est, held, (unseen, barely))
     assert plan is None and distance is None and vertex == -1
     # neither seen enough: the planner's first, as ever, and nothing grasped
-    assert details["reason"] == (f"adjacent corner not seen (visibility 0.00 < {MIN_CORNER_VISIBLE:g}, no measured "
-                                 f"tip within {100 * CLOSE_TIP_M:g} cm): not grasped blind")
+    assert details["reason"] == "adjacent corner not seen (nothing around it seen): not grasped blind"
+    _, _, _, details = _second_plan_on(est, held, (barely, unseen))
+    assert details["reason"] == (f"adjacent corner not seen (visibility 0.12 < {MIN_CORNER_VISIBLE:g}, its measured "
+                                 f"tip {100 * (CLOSE_TIP_M + 0.01):.1f} cm away, over {100 * CLOSE_TIP_M:g} cm): "
+                                 "not grasped blind")
+    _, _, _, details = _second_plan_on(est, held, (dataclasses.replace(barely, tip_offset_m=None),))
+    assert details["reason"] == (f"adjacent corner not seen (visibility 0.12 < {MIN_CORNER_VISIBLE:g}, no measured "
+                                 "tip): not grasped blind")
     # little of it seen, but the measured surface ends where the estimate's corner is: taken
     closely = dataclasses.replace(barely, tip_offset_m=CLOSE_TIP_M)
     assert seen_enough(closely) and not seen_enough(barely) and not seen_enough(unseen)
@@ -172,6 +178,14 @@ def test_a_corner_the_frame_confirms_closely_comes_first():
     # both within the grasp's tolerance: a few millimetres say nothing, the planner's order decides
     both = (confirmed(first, CLOSE_TIP_M - 0.001), close)
     assert stretchable_corner(both, est.canonical, held, held_at) is both[0]
+    # a close tip where the corner lies farther from the held one than its edge allows is no
+    # confirmation: the corner confirmed less closely is taken, and grasped
+    length = second.material_distance_m
+    too_far = dataclasses.replace(close, material_distance_m=0.5 * length)
+    assert why_not_confirmed(too_far, held_at)
+    assert stretchable_corner((too_far, loose), est.canonical, held, held_at) is loose
+    plan, _, _, details = _second_plan_on(est, held, (too_far, loose))
+    assert plan is loose.plan and details["tip_offset_m"] == round(loose.tip_offset_m, 4)
 
 
 def test_a_corner_is_grasped_only_where_the_measured_why_not_confirmed_it():
