@@ -15,7 +15,7 @@ with each frame as the known occluder. The second corner is chosen by
   ``even_if_lost``; the robot takes a reachable one joined to the held corner by a straight
   edge, seen by the camera and confirmed by the measured surface
   (``sim.laundry.controller.stretchable_corner``), and grasps nothing when the one it would
-  take was not seen enough (``seen_enough``) or not confirmed (``why_not_confirmed``);
+  take was not seen enough (``why_not_seen``) or not confirmed (``why_not_confirmed``);
 - "lowest": the lowest point of the hanging cloth as the camera sees it (the classic
   regrasp heuristic; ``grasping.lowest_point_grasp``), no tracking needed;
 - "redetect": the perception service is initialised afresh on the hanging cloth and the
@@ -54,15 +54,13 @@ from sim.evaluation.handled import CONFIDENT, WRONG_MM, unflagged_late
 from sim.grasp_execution import close_fingers, fingertip_target, move_grippers, plan_to_world, pull_apart
 from sim.ground_truth import error_summary, vertex_errors
 from sim.laundry.controller import (
-    CLOSE_TIP_M,
-    MIN_CORNER_VISIBLE,
     View,
     corner_to_lift_first,
     default_controller,
     edge_straightness,
-    seen_enough,
     stretchable_corner,
     why_not_confirmed,
+    why_not_seen,
 )
 from sim.laundry.judge import TOLERANCE_M, judge_unfold, seen_by_camera
 from sim.laundry.pictures import caption, draw_plan, save_png, strip
@@ -197,15 +195,9 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
             return None, None, -1, {"reason": "the planner found no adjacent corner on the estimate's outline"}
         seen = {"visible": round(best.visible, 3), "n_candidates": len(reply.candidates),
                 "tip_offset_m": None if best.tip_offset_m is None else round(best.tip_offset_m, 4)}
-        if not seen_enough(best):  # too little of it seen, and no tip close to it to confirm it
-            if best.visible == 0:
-                why = "nothing around it seen"
-            elif best.tip_offset_m is None:
-                why = f"visibility {best.visible:.2f} < {MIN_CORNER_VISIBLE:g}, no measured tip"
-            else:
-                why = (f"visibility {best.visible:.2f} < {MIN_CORNER_VISIBLE:g}, its measured tip "
-                       f"{100 * best.tip_offset_m:.1f} cm away, over {100 * CLOSE_TIP_M:g} cm")
-            return None, None, -1, {"reason": f"adjacent corner not seen ({why}): not grasped blind", **seen}
+        unseen = why_not_seen(best)
+        if unseen:  # too little of it seen, and no tip close to it to confirm it
+            return None, None, -1, {"reason": f"adjacent corner not seen ({unseen}): not grasped blind", **seen}
         unconfirmed = why_not_confirmed(best, held_cam)
         if unconfirmed:
             return None, None, -1, {"reason": f"adjacent corner not confirmed by the measured surface ({unconfirmed}): "

@@ -135,10 +135,23 @@ def closely_confirmed(corner: AdjacentCorner) -> bool:
     return corner.visible > 0 and corner.tip_offset_m is not None and corner.tip_offset_m <= CLOSE_TIP_M
 
 
+def why_not_seen(corner: AdjacentCorner) -> str:
+    """Why the camera did not see enough of ``corner`` to send a gripper there, one line; ""
+    when it did: at least ``MIN_CORNER_VISIBLE`` of the material around it, or less but
+    ``closely_confirmed``."""
+    if corner.visible >= MIN_CORNER_VISIBLE or closely_confirmed(corner):
+        return ""
+    if corner.visible == 0:
+        return "nothing around it seen"
+    if corner.tip_offset_m is None:
+        return f"visibility {corner.visible:.2f} < {MIN_CORNER_VISIBLE:g}, no measured tip"
+    return (f"visibility {corner.visible:.2f} < {MIN_CORNER_VISIBLE:g}, its measured tip "
+            f"{100 * corner.tip_offset_m:.1f} cm away, over {100 * CLOSE_TIP_M:g} cm")
+
+
 def seen_enough(corner: AdjacentCorner) -> bool:
-    """Whether the camera saw enough of ``corner`` to send a gripper there: at least
-    ``MIN_CORNER_VISIBLE`` of the material around it, or less but ``closely_confirmed``."""
-    return corner.visible >= MIN_CORNER_VISIBLE or closely_confirmed(corner)
+    """Whether the camera saw enough of ``corner`` to send a gripper there (``why_not_seen``)."""
+    return not why_not_seen(corner)
 
 
 def why_not_confirmed(corner: AdjacentCorner, held_point_cam: np.ndarray) -> str:
