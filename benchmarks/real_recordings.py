@@ -23,7 +23,6 @@ prints a table.
 
 from __future__ import annotations
 
-import argparse
 import ast
 import json
 import os
@@ -39,6 +38,7 @@ from tqdm import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from launch_scripts.cli import OneLineParser, exit_130_on_ctrl_c, positive_int  # noqa: E402
 from perception.geometry import pixel_index, project  # noqa: E402
 from perception.overlay import draw_mesh, outlined_text  # noqa: E402
 from perception.raster import bounding_box  # noqa: E402
@@ -205,8 +205,9 @@ def table_row(name: str, preset: str, s: dict) -> str:
             f"{s['confidence_mean']:5.2f} {s['confidence_min']:5.2f} {s['median_ms']:7.1f}  {flow}")
 
 
+@exit_130_on_ctrl_c
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p = OneLineParser(prog="python benchmarks/real_recordings.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--data", type=Path, default=None, help="folder of converted recordings (default: $CLOTHKIT_DATA, "
                                                            "else /work/data)")
     p.add_argument("--recording", nargs="+", help="names of recordings under --data (default: all)")
@@ -216,7 +217,7 @@ def main(argv=None) -> int:
     p.add_argument("--init", choices=("mask", "depth"), default="mask",
                    help="mask: start from the first reference mask if any (default); depth: let the tracker segment")
     p.add_argument("--tolerance-px", type=float, default=3.0, help="on_mask tolerance around the reference mask")
-    p.add_argument("--max-frames", type=int, help="track at most this many frames of each recording")
+    p.add_argument("--max-frames", type=positive_int, help="track at most this many frames of each recording")
     p.add_argument("--strip-frames", type=int, default=6, help="frames in each picture strip")
     p.add_argument("--json", type=Path, default=Path("out/real_recordings/summary.json"))
     p.add_argument("--pictures", type=Path, default=Path("out/real_recordings"))

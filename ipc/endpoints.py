@@ -38,6 +38,23 @@ PERCEPTION_CONTROL = tcp(LOOPBACK, PERCEPTION_CONTROL_PORT)
 PLANNER = tcp(LOOPBACK, PLANNER_PORT)
 
 
+def check_endpoint(endpoint: str) -> str:
+    """``endpoint`` when ZeroMQ can bind or connect it as given: ``ipc://``, ``inproc://``, or
+    ``tcp://HOST:PORT`` with PORT in 1-65535 or ``*`` (ZeroMQ would take port 99999 as another
+    port without a word). Raises ValueError naming what is wrong."""
+    example = "such as tcp://127.0.0.1:5563"
+    if endpoint.startswith(("ipc://", "inproc://")):
+        return endpoint
+    if not endpoint.startswith("tcp://"):
+        raise ValueError(f"expected a ZeroMQ endpoint {example}, got {endpoint!r}")
+    host, colon, port = endpoint[len("tcp://"):].rpartition(":")
+    if not colon or not host:
+        raise ValueError(f"expected tcp://HOST:PORT, {example}, got {endpoint!r}")
+    if port != "*" and not (port.isdigit() and 1 <= int(port) <= 65535):
+        raise ValueError(f"expected a port in 1-65535 or *, got {port!r} in {endpoint!r}")
+    return endpoint
+
+
 def is_loopback(endpoint: str) -> bool:
     """True when ``endpoint`` cannot be reached from another machine: ``ipc://`` and
     ``inproc://``, or ``tcp://`` on a loopback address (127.0.0.0/8, ``localhost``, ``[::1]``,

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import inspect
 import json
 import logging
@@ -12,9 +13,10 @@ import math
 import os
 import re
 import signal
+import sys
 import threading
 
-from ipc.endpoints import is_loopback
+from ipc.endpoints import check_endpoint, is_loopback
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -89,6 +91,14 @@ def finite_float(text: str) -> float:
     if not math.isfinite(value):
         raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
     return value
+
+
+def endpoint(text: str) -> str:
+    """argparse type: a ZeroMQ endpoint to bind or connect (``ipc.endpoints.check_endpoint``)."""
+    try:
+        return check_endpoint(text)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
 
 
 def non_negative_float(text: str) -> float:
@@ -167,12 +177,18 @@ def add_tracker_arguments(parser: argparse.ArgumentParser, default_preset: str =
 def tracker_config_from_args(args):
     """The ``perception.tracker.TrackerConfig`` of the options of ``add_tracker_arguments``: the
     preset with the options given. raises ValueError (one line) for a value the tracker refuses."""
+    from perception.parameters import PARAMETER_RANGES
     from perception.tracker import TrackerConfig
 
     overrides = {}
     for f in dataclasses.fields(TrackerConfig):
         value = getattr(args, f.name, None)
         if value is not None:
+            allowed = PARAMETER_RANGES.get(f.name)
+            # the ranges the service allows over the wire: a mesh spacing of 5 m or 0.1 mm would
+            # not be refused by the tracker, only make it work for hours
+            if allowed is not None and value not in allowed:
+                raise ValueError(f"--{f.name.replace('_', '-')}: expected a value in {allowed}, got {value:g}")
             overrides[f.name] = tuple(value) if isinstance(value, list) else value
     return TrackerConfig.realtime(**overrides) if args.preset == "realtime" else TrackerConfig(**overrides)
 
@@ -230,3 +246,19 @@ def stop_on_signals(stop: threading.Event, signals=(signal.SIGINT, signal.SIGTER
                 return
 
     threading.Thread(target=watch, name="stop on signal", daemon=True).start()
+
+
+def exit_130_on_ctrl_c(main):
+    """Wrap a script's ``main(argv) -> int``: Ctrl-C (KeyboardInterrupt) anywhere in it ends it with
+    the one line ``interrupted`` on stderr and exit status 130 (128 + SIGINT), not a traceback.
+    ``main``'s own ``except``/``finally`` clauses (its clean-up) run first."""
+
+    @functools.wraps(main)
+    def run(*args, **kwargs):
+        try:
+            return main(*args, **kwargs)
+        except KeyboardInterrupt:
+            print("interrupted", file=sys.stderr, flush=True)
+            return 130
+
+    return run

@@ -28,6 +28,7 @@ from launch_scripts.cli import (
     add_tracker_arguments,
     configure_logging,
     curve_keys_from_args,
+    endpoint,
     stop_on_signals,
     tracker_config_from_args,
 )
@@ -37,10 +38,11 @@ from perception.service import PerceptionService, ServiceConfig
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="python -m launch_scripts.perception_service", description=__doc__.split("\n\n")[0])
     g = p.add_argument_group("endpoints")
-    g.add_argument("--frames", default=endpoints.FRAMES, help=f"frame publisher to connect to (default {endpoints.FRAMES})")
-    g.add_argument("--estimates", default=endpoints.ESTIMATES,
+    g.add_argument("--frames", type=endpoint, default=endpoints.FRAMES,
+                   help=f"frame publisher to connect to (default {endpoints.FRAMES})")
+    g.add_argument("--estimates", type=endpoint, default=endpoints.ESTIMATES,
                    help=f"endpoint to publish estimates on (default {endpoints.ESTIMATES})")
-    g.add_argument("--control", default=endpoints.PERCEPTION_CONTROL,
+    g.add_argument("--control", type=endpoint, default=endpoints.PERCEPTION_CONTROL,
                    help=f"endpoint to answer control requests on (default {endpoints.PERCEPTION_CONTROL})")
     add_print_endpoints_argument(g, '{"frames": ..., "estimates": ..., "control": ...}')
     g = p.add_argument_group("behaviour")

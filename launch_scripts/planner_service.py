@@ -44,6 +44,7 @@ from launch_scripts.cli import (
     add_security_arguments,
     configure_logging,
     curve_keys_from_args,
+    endpoint,
     endpoint_printer,
     finite_float,
     stop_on_signals,
@@ -52,19 +53,13 @@ from launch_scripts.cli import (
 log = logging.getLogger("launch_scripts.planner_service")
 
 
-def _endpoint(text: str) -> str:
-    if not text.startswith(("tcp://", "ipc://", "inproc://")):
-        raise argparse.ArgumentTypeError(f"expected a ZeroMQ endpoint such as tcp://127.0.0.1:5563, got {text!r}")
-    return text
-
-
 def build_parser() -> argparse.ArgumentParser:
     p = OneLineParser(prog="python -m launch_scripts.planner_service", description=__doc__.split("\n\n")[0])
-    p.add_argument("--estimates", type=_endpoint, default=endpoints.ESTIMATES,
+    p.add_argument("--estimates", type=endpoint, default=endpoints.ESTIMATES,
                    help=f"MeshEstimate publisher to connect to (default {endpoints.ESTIMATES})")
-    p.add_argument("--bind", type=_endpoint, default=endpoints.PLANNER,
+    p.add_argument("--bind", type=endpoint, default=endpoints.PLANNER,
                    help=f"REP endpoint to bind (default {endpoints.PLANNER})")
-    p.add_argument("--frames", type=_endpoint, default=None,
+    p.add_argument("--frames", type=endpoint, default=None,
                    help="RGBDFrame publisher to connect to for the visibility term (default: none)")
     p.add_argument("--kinds", nargs="+", choices=GraspPlan.KINDS, default=list(GraspPlan.KINDS),
                    help="grasp kinds a GraspRequest may ask for (default: all); AdjacentCornersRequest is "

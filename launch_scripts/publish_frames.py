@@ -143,6 +143,8 @@ def default_pacing(args) -> str:
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.pacing == "rate" and args.rate_hz is None:
+        parser.error("--pacing rate needs --rate-hz HZ (frames per second)")
     configure_logging(args.log_level)
     stop = threading.Event()
     stop_on_signals(stop)

@@ -10,17 +10,29 @@ at 30/K Hz), with its true timestamp. Scenes with occluders (a swept bar, a robo
 gripper and arm) also get ``occluder_masks/``; ``--no-occluders`` records the scene's
 twin: the same cloth motion with nothing drawn in front of it (its masks are all 0).
 
-Bad arguments end the program with a one-line message and exit status 2.
+Bad arguments, or an output folder that cannot be made or written, end the program with a
+one-line message and exit status 2 (checked before simulating); Ctrl-C with ``interrupted``
+and exit status 130. Interrupted or failed, it removes what it wrote: the folder it created
+(never one that existed before; an existing empty one is emptied again).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import shutil
 import sys
 import time
 from pathlib import Path
 
-from launch_scripts.cli import OneLineParser, add_log_level_argument, configure_logging, non_negative_int, positive_int
+from launch_scripts.cli import (
+    OneLineParser,
+    add_log_level_argument,
+    configure_logging,
+    exit_130_on_ctrl_c,
+    non_negative_int,
+    positive_int,
+)
 from sim.recorder import record_sequence
 from sim.scenes import FPS, SCENES, make_scene
 
@@ -45,6 +57,36 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def make_output_folder(out_dir: Path) -> Path | None:
+    """Create ``out_dir`` (with its missing parents) and check that it can be written; return the
+    topmost folder this created, or None when ``out_dir`` already existed. raises OSError (the
+    folders it created removed again)."""
+    created = None
+    for folder in (out_dir, *out_dir.parents):
+        if folder.exists() or folder.is_symlink():
+            break
+        created = folder
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if not os.access(out_dir, os.W_OK | os.X_OK):
+        remove_output(out_dir, created)
+        raise PermissionError(13, "Permission denied")
+    return created
+
+
+def remove_output(out_dir: Path, created: Path | None) -> None:
+    """Undo a run's writing: remove ``created`` (the topmost folder the run made), or, when
+    ``out_dir`` existed before (then empty), what the run put into it."""
+    if created is not None:
+        shutil.rmtree(created, ignore_errors=True)
+        return
+    for child in out_dir.iterdir() if out_dir.is_dir() else ():
+        if child.is_dir() and not child.is_symlink():
+            shutil.rmtree(child, ignore_errors=True)
+        else:
+            child.unlink(missing_ok=True)
+
+
+@exit_130_on_ctrl_c
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -54,13 +96,23 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"image size must be at least 16x16, got {args.width}x{args.height}")
     if args.out_dir.exists() and (not args.out_dir.is_dir() or any(args.out_dir.iterdir())):
         parser.error(f"{args.out_dir} exists and is not an empty directory")
+    try:
+        created = make_output_folder(args.out_dir)
+    except OSError as exc:
+        parser.error(f"{args.out_dir}: cannot create the output folder there ({exc.strerror or exc})")
 
     configure_logging(args.log_level, "%(levelname)s %(name)s: %(message)s")
     start = time.perf_counter()
-    with make_scene(args.scene, seed=args.seed, noise=not args.no_noise, width=args.width, height=args.height,
-                    occluders=not args.no_occluders) as scene:
-        written = record_sequence(scene, args.out_dir, args.frames or scene.n_frames, args.frame_step,
-                                  progress=not args.quiet)
+    try:
+        with make_scene(args.scene, seed=args.seed, noise=not args.no_noise, width=args.width, height=args.height,
+                        occluders=not args.no_occluders) as scene:
+            written = record_sequence(scene, args.out_dir, args.frames or scene.n_frames, args.frame_step,
+                                      progress=not args.quiet)
+    except BaseException as exc:  # Ctrl-C or an error: leave no half-written folder behind
+        remove_output(args.out_dir, created)
+        if isinstance(exc, OSError):
+            parser.error(f"{args.out_dir}: cannot write the sequence ({exc})")
+        raise
     if not args.quiet:
         print(f"{args.out_dir}: {written} frames of {args.scene} (seed {args.seed}) in "
               f"{time.perf_counter() - start:.1f} s", file=sys.stderr)

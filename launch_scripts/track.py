@@ -12,12 +12,21 @@ gives known occluders (the robot's gripper or arm, a hand): one 8-bit PNG per fr
 as the frame's depth image, non-zero on the occluder.
 Optionally the mesh drawn over every RGB frame (PNG) and a PLY mesh per frame.
 Bad input ends with exit status 2 and one line on stderr naming the problem.
+
+A tracker that loses the object and finds it again with a new mesh (a plain cloth, whose
+material points cannot be found again) goes on with that mesh. The keys above are the first
+mesh's: its material points from frame 0 on, NaN (``visible`` False) in the frames tracked
+on a later mesh. ``mesh`` (T,) int says which mesh each frame's estimate is on (0 the first),
+and each later mesh K has the same keys prefixed ``meshK_``: ``meshK_vertices`` (T, N_K, 3)
+(NaN in the frames not on it), ``meshK_faces``, ``meshK_boundary``, ``meshK_canonical`` and
+``meshK_visible``.
 """
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -26,9 +35,11 @@ import numpy as np
 from tqdm import tqdm
 
 from launch_scripts.cli import (
+    OneLineParser,
     add_log_level_argument,
     add_tracker_arguments,
     configure_logging,
+    positive_int,
     tracker_config_from_args,
 )
 from perception.overlay import draw_mesh, ply_bytes
@@ -39,13 +50,13 @@ log = logging.getLogger(__name__)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="python -m perception.track", description=__doc__.split("\n\n")[0])
+    p = OneLineParser(prog="python -m perception.track", description=__doc__.split("\n\n")[0])
     p.add_argument("sequence", type=Path, help="sequence folder (rgb.txt, depth.txt, camera_intrinsic.json)")
     p.add_argument("--output", "-o", type=Path, required=True, help="EST.npz to write")
     p.add_argument("--init-mask", type=Path, help="8-bit PNG, non-zero on the object in the first frame")
     p.add_argument("--occluder-masks", type=Path, metavar="DIR",
                    help="folder of 8-bit PNGs named as the depth images, non-zero on known occluders")
-    p.add_argument("--max-frames", type=int, help="track at most this many frames")
+    p.add_argument("--max-frames", type=positive_int, help="track at most this many frames")
     p.add_argument("--overlay-dir", type=Path, help="write the mesh drawn over each RGB frame here (PNG)")
     p.add_argument("--ply-dir", type=Path, help="write each frame's mesh here (PLY)")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
@@ -61,13 +72,13 @@ def track_sequence(args) -> dict:
     config = tracker_config_from_args(args)
     if args.occluder_masks is not None and not args.occluder_masks.is_dir():
         raise ValueError(f"--occluder-masks {args.occluder_masks}: not a directory")
-    n = len(seq) if args.max_frames is None else max(1, min(len(seq), args.max_frames))
+    n = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
+    output = _writable(args.output)
     tracker = MeshTracker(config)
     for d in (args.overlay_dir, args.ply_dir):
         if d is not None:
             d.mkdir(parents=True, exist_ok=True)
-    out = {k: [] for k in ("vertices", "timestamps", "timing_ms", "confidence", "lost", "visible")}
-    estimate = None
+    estimates, timestamps = [], []
     for i in tqdm(range(n), desc="tracking", unit="frame", disable=args.quiet):
         frame = seq.frame(i, occluder_dir=args.occluder_masks)
         if i == 0:
@@ -75,25 +86,58 @@ def track_sequence(args) -> dict:
             estimate = tracker.initialise(frame, mask=mask)
         else:
             estimate = tracker.track(frame)
-        out["vertices"].append(estimate.vertices.astype(np.float32))
-        out["timestamps"].append(frame.timestamp_s)
-        out["timing_ms"].append(estimate.timing_ms)
-        out["confidence"].append(estimate.confidence)
-        out["lost"].append(estimate.lost)
-        out["visible"].append(estimate.visible)
+        estimates.append(estimate)
+        timestamps.append(frame.timestamp_s)
         if args.overlay_dir is not None:
             img = draw_mesh(frame.rgb, estimate, frame.camera.K)
             cv2.imwrite(str(args.overlay_dir / f"{i:06d}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
         if args.ply_dir is not None:
             (args.ply_dir / f"{i:06d}.ply").write_bytes(ply_bytes(estimate.vertices, estimate.faces))
-    result = dict(
-        vertices=np.stack(out["vertices"]), faces=estimate.faces.astype(np.int32),
-        boundary=estimate.boundary.astype(np.int32), canonical=estimate.canonical.astype(np.float32),
-        timestamps=np.asarray(out["timestamps"], np.float64), timing_ms=np.asarray(out["timing_ms"], np.float64),
-        confidence=np.asarray(out["confidence"], np.float64), lost=np.asarray(out["lost"], bool),
-        visible=np.stack(out["visible"]).astype(bool))
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(args.output, **result)
+    result = estimate_arrays(estimates, timestamps)
+    with open(output, "wb") as f:  # a file object: numpy adds no ".npz" to the name given
+        np.savez_compressed(f, **result)
+    return result
+
+
+def _writable(path: Path) -> Path:
+    """``path`` once its folder exists and may be written in (checked before tracking, not
+    after); raises ValueError naming ``--output`` otherwise."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise ValueError(f"--output {path}: cannot make its folder ({e.strerror or e})") from None
+    if path.is_dir() or not os.access(path.parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
+        raise ValueError(f"--output {path}: cannot write a file there")
+    return path
+
+
+def estimate_arrays(estimates: list, timestamps: list) -> dict:
+    """EST.npz's arrays (module docstring) of one estimate per frame: the first mesh's under the
+    documented keys, each later one's (a new mesh laid when the object was found again) under
+    ``meshK_``, and ``mesh``, the mesh of each frame."""
+    meshes, index = [], []
+    for e in estimates:
+        if not meshes or not np.array_equal(meshes[-1].canonical, e.canonical):
+            meshes.append(e)
+        index.append(len(meshes) - 1)
+    index = np.asarray(index)
+    result = {"timestamps": np.asarray(timestamps, np.float64),
+              "timing_ms": np.asarray([e.timing_ms for e in estimates], np.float64),
+              "confidence": np.asarray([e.confidence for e in estimates], np.float64),
+              "lost": np.asarray([e.lost for e in estimates], bool), "mesh": index.astype(np.int32)}
+    for k, first in enumerate(meshes):
+        n = len(first.vertices)
+        vertices = np.full((len(estimates), n, 3), np.nan, np.float32)
+        visible = np.zeros((len(estimates), n), bool)
+        for t in np.flatnonzero(index == k):
+            vertices[t], visible[t] = estimates[t].vertices, estimates[t].visible
+        prefix = f"mesh{k}_" if k else ""
+        result.update({f"{prefix}vertices": vertices, f"{prefix}faces": first.faces.astype(np.int32),
+                       f"{prefix}boundary": first.boundary.astype(np.int32),
+                       f"{prefix}canonical": first.canonical.astype(np.float32), f"{prefix}visible": visible})
+        if k:
+            log.warning("frame %d: a new mesh of %d vertices (the object found again): EST.npz's vertices are NaN "
+                        "from there, the new mesh's are in mesh%d_vertices", int(np.argmax(index == k)), n, k)
     return result
 
 
@@ -105,9 +149,14 @@ def main(argv=None) -> int:
     except (SequenceError, TrackingError, ValueError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"interrupted; {args.output} not written", file=sys.stderr)
+        return 130
     t = result["timing_ms"][1:] if len(result["timing_ms"]) > 1 else result["timing_ms"]
+    meshes = int(result["mesh"].max()) + 1
     if not args.quiet:
-        print(f"tracked {len(result['timestamps'])} frames, {result['vertices'].shape[1]} vertices, "
+        print(f"tracked {len(result['timestamps'])} frames, {result['vertices'].shape[1]} vertices"
+              f"{f' ({meshes - 1} new mesh(es) after the object was found again)' if meshes > 1 else ''}, "
               f"median {np.median(t):.1f} ms/frame, lost in {int(result['lost'].sum())}; wrote {args.output}")
     return 0
 

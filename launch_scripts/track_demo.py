@@ -20,20 +20,32 @@ from pathlib import Path
 import numpy as np
 
 from launch_scripts import record_scene, track
+from launch_scripts.cli import OneLineParser, exit_130_on_ctrl_c
 from sim.evaluation.figures import error_over_time
 from sim.ground_truth import error_summary, vertex_errors
+from sim.scenes import SCENES
 
 
+def build_parser() -> argparse.ArgumentParser:
+    p = OneLineParser(prog="python -m launch_scripts.track_demo", description=__doc__.split("\n\n")[0],
+                                epilog="Options after -- go to python -m launch_scripts.track (e.g. -- --preset "
+                                       "realtime). Ctrl-C stops with exit status 130.")
+    p.add_argument("--scene", default="towel_sway",
+                   help=f"simulated scene to record, one of: {', '.join(sorted(SCENES))} (default towel_sway)")
+    p.add_argument("--frames", type=int, default=60, help="number of frames to record and track (default 60)")
+    p.add_argument("--seed", type=int, default=0, help="scene and sensor-noise seed (default 0)")
+    p.add_argument("--out", type=Path, default=Path("out/track_demo"),
+                   help="output folder: sequence/ (replaced on each run), est.npz, overlays/, error_over_time.png, "
+                        "summary.json (default out/track_demo)")
+    return p
+
+
+@exit_130_on_ctrl_c
 def main(argv=None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     extra = argv[argv.index("--") + 1 :] if "--" in argv else []
     own = argv[: argv.index("--")] if "--" in argv else argv
-    p = argparse.ArgumentParser(prog="python -m launch_scripts.track_demo", description=__doc__.split("\n\n")[0])
-    p.add_argument("--scene", default="towel_sway")
-    p.add_argument("--frames", type=int, default=60)
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--out", type=Path, default=Path("out/track_demo"))
-    args = p.parse_args(own)
+    args = build_parser().parse_args(own)
 
     seq = args.out / "sequence"
     if seq.exists():

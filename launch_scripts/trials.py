@@ -87,7 +87,9 @@ def _seeds(text: str) -> list[int]:
         seeds = list(range(*parts))
     else:
         raise argparse.ArgumentTypeError(f"expected START:STOP[:STEP] with a non-zero step, got {text!r}")
-    if not seeds or min(seeds) < 0:
+    if not seeds:
+        raise argparse.ArgumentTypeError(f"{text!r} is an empty range (as Python's range: START < STOP for a positive STEP)")
+    if min(seeds) < 0:
         raise argparse.ArgumentTypeError(f"expected seeds >= 0, got {text!r}")
     return seeds
 
@@ -100,7 +102,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--task", choices=TASKS, default="corner",
                    help="corner: grasp one corner and lift (default); unfold: lift by one corner while tracked, "
                         "take an adjacent corner with a second gripper and stretch the edge")
-    p.add_argument("--regrasp", choices=REGRASPS, nargs="+", default=["adjacent"],
+    p.add_argument("--regrasp", choices=REGRASPS, nargs="+",
                    help="unfold: how the second corner is chosen; several run each seed once per choice "
                         "(adjacent: the tracked mesh, default; lowest, redetect: baselines)")
     p.add_argument("--kind", "--mode", dest="kind", choices=GraspPlan.KINDS, default="corner",
@@ -433,6 +435,17 @@ def _run_ray(seeds: list[int], config: TrialConfig, workers: int, progress, addr
     return records
 
 
+def _unwritable(folder: Path) -> str | None:
+    """Why files cannot be written in ``folder`` (made if missing), or None when they can."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        return "is a file, expected a folder"
+    except OSError as e:
+        return f"cannot make this folder ({e.strerror or e})"
+    return None if os.access(folder, os.W_OK) else "cannot write in this folder"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -444,18 +457,28 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as e:
         parser.error(str(e))
     configure_logging(args.log_level)
-    log_dir = args.log_dir if args.log_dir is not None else args.json.parent / "logs"
     scene_options = {k: v for k, v in (("state", args.state), ("cloth_kind", args.cloth)) if v is not None}
     if args.task == "unfold" and args.kind != "corner":
         parser.error("--task unfold grasps corners: --kind must be corner")
     if args.arm != "drawn" and args.task != "unfold":
         parser.error(f"--arm {args.arm}: only the unfold task's robot has arms")
+    if args.regrasp is not None and args.task != "unfold":
+        parser.error("--regrasp: only the unfold task takes a second corner (add --task unfold)")
+    log_dir = args.log_dir if args.log_dir is not None else args.json.parent / "logs"
+    # every folder the run writes in, made once the options are known good: a run of many
+    # trials must not fail at its end
+    for option, folder in (("--json", args.json.parent), ("--markdown", args.markdown and args.markdown.parent),
+                           ("--pictures", args.pictures), ("--log-dir", log_dir)):
+        if folder is not None:
+            why = _unwritable(folder)
+            if why:
+                parser.error(f"{option} {folder}: {why}")
     unfold = args.task == "unfold"
     configs = [TrialConfig(task=args.task, regrasp=regrasp, kind=args.kind, observe_frames=args.frames,
                            log_dir=str(log_dir),
                            pictures_dir=None if args.pictures is None else str(args.pictures),
                            scene_options=scene_options, arm=args.arm)
-               for regrasp in (dict.fromkeys(args.regrasp) if unfold else ["adjacent"])]
+               for regrasp in (dict.fromkeys(args.regrasp or ["adjacent"]) if unfold else ["adjacent"])]
     command = "python -m launch_scripts.trials " + " ".join(shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))
 
     title = "unfold" if unfold else args.kind

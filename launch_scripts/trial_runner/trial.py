@@ -359,7 +359,8 @@ def run_trial(seed: int, config: TrialConfig | None = None,
     ``timing`` (``init_ms`` and median ``tracking_ms`` from the tracker, ``planning_ms``
     the request's round trip, ``total_s``), ``picture`` (path or None).
     Never raises: a trial that cannot run (a service that does not start, a timeout, a
-    scene option that does not exist) is a record whose ``failure`` starts with "error:".
+    scene option that does not exist) is a record whose ``failure`` starts with "error:", never a
+    success (whatever the trial had judged before it failed).
     """
     # zmq and PyBullet are loaded when a trial runs, not when the runner imports this module.
     from ipc.transport import Publisher
@@ -400,10 +401,10 @@ def run_trial(seed: int, config: TrialConfig | None = None,
         except (ChildError, TimeoutError, OSError, RuntimeError, ValueError) as e:
             log.warning("seed %d: %s: %s", seed, type(e).__name__, e)
             log.debug("seed %d:\n%s", seed, traceback.format_exc())  # a bug looks like a bad option: show where
-            record["failure"] = f"error: {type(e).__name__}: {' '.join(str(e).split())}"
+            record.update(success=False, failure=f"error: {type(e).__name__}: {' '.join(str(e).split())}")
         except Exception as e:  # noqa: BLE001 -- an unexpected failure of one trial must not stop a run of many
             log.error("seed %d failed:\n%s", seed, traceback.format_exc())
-            record["failure"] = f"error: {type(e).__name__}: {' '.join(str(e).split())}"
+            record.update(success=False, failure=f"error: {type(e).__name__}: {' '.join(str(e).split())}")
     record.setdefault("timing", {})["total_s"] = round(time.perf_counter() - start, 2)
     return record
 

@@ -27,10 +27,27 @@ def _pixels(points_cam: np.ndarray, K: np.ndarray) -> np.ndarray:
 
 
 def caption(rgb: np.ndarray, text: str, row: int = 0) -> np.ndarray:
-    """A copy of ``rgb`` with one line of text at the bottom-left (row 0 lowest)."""
+    """A copy of ``rgb`` with text at the bottom-left, its last line in ``row`` (0 lowest). Text
+    wider than the picture is wrapped at spaces onto the rows above, so that a long verdict is
+    read whole rather than cut at the picture's edge."""
     out = np.ascontiguousarray(rgb.copy())
-    outlined_text(out, text, (8, out.shape[0] - 10 - 22 * row))
+    lines = _wrapped(text, out.shape[1] - 16)
+    for k, line in enumerate(lines):
+        outlined_text(out, line, (8, out.shape[0] - 10 - 22 * (row + len(lines) - 1 - k)))
     return out
+
+
+def _wrapped(text: str, width_px: int, scale: float = 0.55) -> list[str]:
+    """``text`` in lines no wider than ``width_px`` in ``outlined_text``'s font (a single word
+    wider than that stays whole on its line)."""
+    lines: list[str] = []
+    for word in text.split():
+        wider = f"{lines[-1]} {word}" if lines else word
+        if lines and cv2.getTextSize(wider, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0] <= width_px:
+            lines[-1] = wider
+        else:
+            lines.append(word)
+    return lines or [""]
 
 
 def draw_plan(rgb: np.ndarray, K: np.ndarray, plans: list[GraspPlan], corners_cam: np.ndarray,

@@ -95,6 +95,15 @@ def test_a_grasp_at_the_cloth_centre_is_judged_a_failure(tmp_path):
     np.testing.assert_allclose(record["grasped_uv"], [width / 2, height / 2], atol=0.03)
 
 
+def test_a_trial_that_fails_after_its_verdict_is_no_success(tmp_path):
+    # seed 0 grasps its corner (the README's trial); its picture cannot be written where a file is
+    (tmp_path / "file").write_text("not a folder")
+    config = TrialConfig(observe_frames=3, pictures_dir=str(tmp_path / "file"), log_dir=str(tmp_path))
+    record = run_trial(0, config)
+    assert record["failure"].startswith("error: "), record["failure"]
+    assert record["success"] is False
+
+
 def test_a_cloth_held_up_is_grasped_at_its_lowest_point_from_the_side(tmp_path):
     config = TrialConfig(observe_frames=3, scene_options={"state": "held", "cloth_kind": "towel"}, log_dir=str(tmp_path))
     record = run_trial(6, config)

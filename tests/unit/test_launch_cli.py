@@ -83,7 +83,7 @@ def test_tracker_options_come_from_the_config_fields():
                                              "--outlier-radii-m", "0.1", "0.03"]))
     assert config == TrackerConfig.realtime(use_depth=False, outlier_radii_m=(0.1, 0.03))
     assert tracker_config_from_args(parse(["SEQ", "-o", "x.npz"])) == TrackerConfig()
-    with pytest.raises(ValueError, match="lambda_d"):
+    with pytest.raises(ValueError, match="--lambda-d: expected a value in \\[0, 100\\], got -1"):
         tracker_config_from_args(parse(["SEQ", "-o", "x.npz", "--lambda-d", "-1"]))
 
 
@@ -126,3 +126,32 @@ def test_entry_points_share_their_flag_names():
         assert {"--print-endpoints", "--print-endpoint"} <= found and "-v" not in found, module.__name__
     args = planner_service.build_parser().parse_args(["--print-endpoint", "--log-level", "WARNING"])
     assert args.print_endpoints and args.log_level == "WARNING"
+
+
+@pytest.mark.parametrize("text, ok", [
+    ("tcp://127.0.0.1:5562", True), ("tcp://127.0.0.1:*", True), ("tcp://[::1]:5562", True), ("ipc:///tmp/x", True),
+    ("inproc://frames", True), ("tcp://127.0.0.1:99999", False), ("tcp://127.0.0.1:0", False),
+    ("tcp://127.0.0.1", False), ("tcp://:5562", False), ("127.0.0.1:5562", False), ("tcp://host:http", False),
+])
+def test_an_endpoint_zeromq_would_take_for_another_is_refused(text, ok):
+    from ipc.endpoints import check_endpoint
+
+    if ok:
+        assert check_endpoint(text) == text
+    else:
+        with pytest.raises(ValueError, match="expected"):
+            check_endpoint(text)
+
+
+@pytest.mark.parametrize("module, option", [("perception_service", "--control"), ("perception_service", "--frames"),
+                                            ("perception_service", "--estimates"), ("planner_service", "--bind"),
+                                            ("planner_service", "--estimates")])
+def test_the_services_refuse_a_port_out_of_range_in_one_line(module, option, capsys):
+    import importlib
+
+    parser = importlib.import_module(f"launch_scripts.{module}").build_parser()
+    with pytest.raises(SystemExit) as e:
+        parser.parse_args([option, "tcp://127.0.0.1:99999"])
+    assert e.value.code == 2
+    assert capsys.readouterr().err.strip().endswith(
+        f"error: argument {option}: expected a port in 1-65535 or *, got '99999' in 'tcp://127.0.0.1:99999'")

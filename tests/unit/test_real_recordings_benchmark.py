@@ -62,3 +62,22 @@ def test_bad_arguments_exit_2_with_one_line(tmp_path, capsys):
     assert bench.main(["--data", str(tmp_path), "--set", "nope=1", "-q"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 2 and "no such folder" in err[0] and "nope" in err[1]
+
+
+@pytest.mark.parametrize("value", ["0", "-3"])
+def test_max_frames_must_be_positive(tmp_path, capsys, value):
+    with pytest.raises(SystemExit) as stop:
+        bench.main(["--data", str(tmp_path), "--max-frames", value, "-q"])
+    assert stop.value.code == 2
+    assert capsys.readouterr().err == ("python benchmarks/real_recordings.py: error: argument --max-frames: "
+                                       f"expected a positive integer, got {value}\n")
+
+
+def test_ctrl_c_is_one_line_and_status_130(tmp_path, capsys, monkeypatch):
+    def interrupted(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(bench, "recordings_under", interrupted)
+    assert bench.main(["--data", str(tmp_path), "-q", "--json", str(tmp_path / "s.json"),
+                       "--pictures", str(tmp_path / "p")]) == 130
+    assert capsys.readouterr().err == "interrupted\n"

@@ -97,3 +97,66 @@ def test_refuses_a_non_empty_output_folder(tmp_path):
     with pytest.raises(SystemExit) as exc:
         main(["poster_bend", str(tmp_path)])
     assert exc.value.code == 2
+
+
+def _no_simulation(*args, **kwargs):
+    raise AssertionError("simulated before checking the output folder")
+
+
+@pytest.mark.parametrize("where, reason", [("under_a_file", "Not a directory"), ("/proc/nope", None)])
+def test_an_output_folder_that_cannot_be_made_is_one_line_before_simulating(tmp_path, capsys, monkeypatch, where,
+                                                                              reason):
+    if where == "/proc/nope" and not Path("/proc/self").exists():
+        pytest.skip("no /proc")
+    (tmp_path / "file").write_text("x")
+    out = tmp_path / "file" / "seq" if where == "under_a_file" else Path(where)
+    monkeypatch.setattr("launch_scripts.record_scene.make_scene", _no_simulation)
+    with pytest.raises(SystemExit) as exc:
+        main(["poster_bend", str(out), "--quiet"])
+    assert exc.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"python -m launch_scripts.record_scene: error: {out}: cannot create "
+                                                   "the output folder there (")
+    assert reason is None or reason in lines[0]
+
+
+def _interrupted_recording(scene, out_dir, *args, **kwargs):
+    (Path(out_dir) / "rgb").mkdir(parents=True)
+    (Path(out_dir) / "rgb" / "0.png").write_bytes(b"half")
+    raise KeyboardInterrupt
+
+
+class _Scene:
+    n_frames = 3
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+
+def test_ctrl_c_removes_the_folders_it_made_and_exits_130(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr("launch_scripts.record_scene.make_scene", lambda *a, **k: _Scene())
+    monkeypatch.setattr("launch_scripts.record_scene.record_sequence", _interrupted_recording)
+    assert main(["poster_bend", str(tmp_path / "new" / "seq"), "--quiet"]) == 130
+    assert capsys.readouterr().err == "interrupted\n"
+    assert list(tmp_path.iterdir()) == [], "the parent it made is gone too"
+    (tmp_path / "mine").mkdir()  # existed before the run, empty: kept, emptied again
+    assert main(["poster_bend", str(tmp_path / "mine"), "--quiet"]) == 130
+    assert (tmp_path / "mine").is_dir() and list((tmp_path / "mine").iterdir()) == []
+
+
+def test_a_write_error_is_one_line_and_removes_the_folder(tmp_path, capsys, monkeypatch):
+    def full_disk(scene, out_dir, *args, **kwargs):
+        Path(out_dir, "rgb.txt").write_text("half")
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr("launch_scripts.record_scene.make_scene", lambda *a, **k: _Scene())
+    monkeypatch.setattr("launch_scripts.record_scene.record_sequence", full_disk)
+    with pytest.raises(SystemExit) as exc:
+        main(["poster_bend", str(tmp_path / "seq"), "--quiet"])
+    assert exc.value.code == 2
+    assert capsys.readouterr().err == (f"python -m launch_scripts.record_scene: error: {tmp_path / 'seq'}: cannot write "
+                                       "the sequence ([Errno 28] No space left on device)\n")
+    assert not (tmp_path / "seq").exists()

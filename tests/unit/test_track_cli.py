@@ -106,6 +106,57 @@ def test_bad_input_exits_2_with_one_line(seq, tmp_path, capsys, case, message):
     assert err.startswith("error:") and message in err.lower() and "\n" not in err
 
 
+@pytest.mark.parametrize("option, value, message", [
+    ("--spacing-m", "5", "--spacing-m: expected a value in 0 or [0.005, 1], got 5"),  # hours of work, before
+    ("--spacing-m", "0.0001", "--spacing-m: expected a value in 0 or [0.005, 1], got 0.0001"),
+    ("--max-frames", "0", "--max-frames"),
+    ("--output", "FILE/est.npz", "--output"),  # a folder that is a file: said before any frame is tracked
+])
+def test_an_option_out_of_range_is_refused_in_one_line(seq, tmp_path, capsys, option, value, message):
+    (tmp_path / "FILE").write_text("a file")
+    args = [str(seq), "-q", "-o", str(tmp_path / "e.npz"), option, value.replace("FILE", str(tmp_path / "FILE"))]
+    if option == "--max-frames":  # refused by the parser
+        with pytest.raises(SystemExit) as stop:
+            main(args)
+        assert stop.value.code == 2
+    else:
+        assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert message in err and "\n" not in err and "Traceback" not in err
+
+
+def test_the_output_is_written_under_the_name_given(seq, tmp_path):
+    assert main([str(seq), "-o", str(tmp_path / "est"), "-q", "--max-frames", "2"]) == 0
+    assert (tmp_path / "est").is_file() and not (tmp_path / "est.npz").exists()
+    assert np.load(tmp_path / "est")["vertices"].shape[0] == 2
+
+
+def test_a_new_mesh_laid_when_the_object_was_found_again_is_kept_beside_the_first():
+    from types import SimpleNamespace
+
+    from launch_scripts.track import estimate_arrays
+
+    def estimate(canonical, faces, shift, seen=True):
+        n = len(canonical)
+        return SimpleNamespace(vertices=canonical + shift, faces=faces, boundary=np.arange(3), canonical=canonical,
+                               visible=np.full(n, seen), timing_ms=5.0, confidence=0.9, lost=False)
+
+    first, second = np.random.default_rng(0).random((6, 3)), np.random.default_rng(1).random((4, 3))
+    f6, f4 = np.array([[0, 1, 2], [3, 4, 5]]), np.array([[0, 1, 2], [1, 2, 3]])
+    estimates = [estimate(first, f6, 0.0), estimate(first, f6, 0.1), estimate(second, f4, 0.0), estimate(second, f4, 0.2)]
+    est = estimate_arrays(estimates, [0.0, 1.0, 2.0, 3.0])
+    assert est["mesh"].tolist() == [0, 0, 1, 1]
+    # the contract's keys are the first mesh's: its material points while it was tracked, NaN after
+    assert est["vertices"].shape == (4, 6, 3) and est["canonical"].shape == (6, 3) and est["faces"].shape == (2, 3)
+    np.testing.assert_allclose(est["vertices"][1], first + 0.1, atol=1e-6)
+    assert np.isnan(est["vertices"][2:]).all() and not est["visible"][2:].any() and est["visible"][:2].all()
+    # the new mesh under mesh1_, NaN before it was laid
+    assert est["mesh1_vertices"].shape == (4, 4, 3) and est["mesh1_faces"].tolist() == f4.tolist()
+    np.testing.assert_allclose(est["mesh1_vertices"][3], second + 0.2, atol=1e-6)
+    assert np.isnan(est["mesh1_vertices"][:2]).all() and est["mesh1_visible"][2:].all()
+    assert est["timestamps"].tolist() == [0.0, 1.0, 2.0, 3.0] and "mesh2_vertices" not in est
+
+
 def test_command_line_has_no_traceback_for_user_mistakes(tmp_path):
     r = subprocess.run([sys.executable, "-m", "perception.track", str(tmp_path), "--output", str(tmp_path / "x.npz")],
                        capture_output=True, text=True, timeout=120)

@@ -169,6 +169,8 @@ def test_failure_kind_drops_numbers_and_keeps_error_types():
     (["--seeds", "x", "--json", "r.json"], "argument --seeds: expected a seed (integer >= 0) or START:STOP[:STEP], got 'x'"),
     (["--seeds", "-2", "--json", "r.json"], "argument --seeds: expected seeds >= 0, got '-2'"),
     (["--seeds", "0:10:0", "--json", "r.json"], "argument --seeds: expected START:STOP[:STEP] with a non-zero step"),
+    (["--seeds", "5:1", "--json", "r.json"], "argument --seeds: '5:1' is an empty range"),
+    (["--seeds", "0", "--json", "r.json", "--regrasp", "lowest"], "--regrasp: only the unfold task takes a second corner"),
     (["--seeds", "0", "--json", "r.json", "--workers", "0"], "argument --workers: expected a positive integer, got 0"),
     (["--seeds", "0", "--json", "r.json", "--mode", "middle"], "argument --kind/--mode: invalid choice: 'middle'"),
     (["--json", "r.json"], "the following arguments are required: --seeds"),
@@ -394,9 +396,44 @@ def test_a_caption_is_one_label_its_outline_does_not_drift_from_its_text():
     assert dark_cols.min() >= white_cols.min() - 2 and dark_cols.max() <= white_cols.max() + 2
 
 
+def test_a_caption_wider_than_its_picture_is_wrapped_onto_the_rows_above():
+    from sim.laundry.pictures import caption
+
+    verdict = ("FAILURE: first grasp 3.7 cm from the nearest corner; the held corners do not share an edge; "
+               "edge held at 86 % of its length")
+    img = caption(np.full((200, 640, 3), 128, np.uint8), verdict, row=1)
+    white = (img[..., 0] > 230)
+    rows, cols = np.flatnonzero(white.any(axis=1)), np.flatnonzero(white.any(axis=0))
+    assert cols.max() < 640 - 8  # nothing runs off the right edge
+    # two or more lines, the last one in row 1 (above row 0's caption), the others above it
+    assert rows.max() <= 200 - 10 - 22 + 4 and rows.min() <= 200 - 10 - 22 * 2 - 8  # baselines and letters' height
+    short = caption(np.full((200, 640, 3), 128, np.uint8), "SUCCESS", row=1)
+    assert (short[..., 0] > 230).any(axis=1).nonzero()[0].min() > 200 - 10 - 22 * 2
+
+
 def test_the_baseline_executes_the_planners_highest_point_even_for_a_held_cloth():
     from sim.laundry import best_candidate, default_controller, lowest_point_when_held
 
     assert default_controller("highest") is best_candidate
     assert default_controller("corner") is lowest_point_when_held
     assert default_controller("boundary") is lowest_point_when_held
+
+
+@pytest.mark.parametrize("option, message", [
+    ("--json", "--json {tmp}/file/r.json".replace("/r.json", "") + ": is a file, expected a folder"),
+    ("--pictures", "--pictures {tmp}/file: is a file, expected a folder"),
+    ("--markdown", "--markdown {tmp}/file: is a file, expected a folder"),
+])
+def test_trials_refuse_an_output_they_cannot_write_before_running_any(tmp_path, capsys, option, message):
+    from launch_scripts.trials import main
+
+    (tmp_path / "file").write_text("a file, not a folder")
+    paths = {"--json": tmp_path / "r.json", "--pictures": tmp_path / "pictures", "--markdown": tmp_path / "s.md"}
+    paths[option] = tmp_path / "file" / ("r.json" if option == "--json" else "s.md") if option != "--pictures" \
+        else tmp_path / "file"
+    args = ["--seeds", "0", "--quiet"] + [a for k, v in paths.items() for a in (k, str(v))]
+    with pytest.raises(SystemExit) as e:
+        main(args)
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"python -m launch_scripts.trials: error: {message.format(tmp=tmp_path)}"

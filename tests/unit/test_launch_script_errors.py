@@ -1,0 +1,70 @@
+"""What the launch scripts say to a user who interrupts them or asks for help: one line, no traceback."""
+
+import argparse
+
+import numpy as np
+import pytest
+
+from ipc.messages import CameraInfo
+from launch_scripts.cli import exit_130_on_ctrl_c
+
+
+def test_ctrl_c_ends_a_wrapped_main_with_one_line_and_status_130(capsys):
+    cleaned = []
+
+    @exit_130_on_ctrl_c
+    def main(argv=None) -> int:
+        """The script's main."""
+        try:
+            raise KeyboardInterrupt
+        finally:
+            cleaned.append(argv)
+
+    assert main(["x"]) == 130 and cleaned == [["x"]]
+    assert capsys.readouterr() == ("", "interrupted\n")
+    assert main.__doc__ == "The script's main."
+    assert exit_130_on_ctrl_c(lambda argv: 7)([]) == 7
+    with pytest.raises(SystemExit):  # usage errors and --help still end as argparse ends them
+        exit_130_on_ctrl_c(lambda argv: argparse.ArgumentParser().parse_args(argv))(["--nope"])
+
+
+def test_track_demo_describes_every_option(capsys):
+    from launch_scripts.track_demo import build_parser
+
+    parser = build_parser()
+    undescribed = [a.option_strings for a in parser._actions if not a.help]
+    assert undescribed == []
+    help_text = " ".join(parser.format_help().split())
+    assert "(default towel_sway)" in help_text and "(default 60)" in help_text and "(default out/track_demo)" in help_text
+
+
+def test_track_demo_ctrl_c_is_one_line_and_status_130(tmp_path, capsys, monkeypatch):
+    from launch_scripts import track_demo
+
+    def interrupted(argv):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(track_demo.record_scene, "main", interrupted)
+    assert track_demo.main(["--out", str(tmp_path / "demo")]) == 130
+    assert capsys.readouterr().err == "interrupted\n"
+
+
+def test_publish_frames_rate_pacing_needs_a_rate(capsys):
+    from launch_scripts.publish_frames import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["sim", "--pacing", "rate"])
+    assert stop.value.code == 2
+    assert capsys.readouterr().err == ("python -m launch_scripts.publish_frames: error: --pacing rate needs --rate-hz HZ "
+                                       "(frames per second)\n")
+
+
+def test_reference_masks_names_the_seed_mask_option(tmp_path, capsys):
+    from launch_scripts.reference_masks import main
+    from tests.render import write_sheet_recording
+
+    write_sheet_recording(tmp_path / "seq", CameraInfo.from_fov(160, 120, np.deg2rad(45)), 2, 0.01)
+    (tmp_path / "text.png").write_text("not an image")
+    for seed, problem in ((tmp_path / "nope.png", "no such file"), (tmp_path / "text.png", "not a readable image")):
+        assert main([str(tmp_path / "seq"), "--seed-mask", str(seed), "--replace", "-q"]) == 2
+        assert capsys.readouterr().err == f"error: --seed-mask {seed}: {problem}\n"
