@@ -109,6 +109,14 @@ def non_negative_float(text: str) -> float:
     return value
 
 
+def positive_float(text: str) -> float:
+    """argparse type: a finite number > 0."""
+    value = finite_float(text)
+    if value <= 0:
+        raise argparse.ArgumentTypeError(f"expected a number > 0, got {text}")
+    return value
+
+
 def field_docs(cls) -> dict[str, str]:
     """Field name -> description, from a dataclass's docstring, which lists its fields as
     ``name : text`` or ``name_a, name_b : text`` lines, a description going on over the

@@ -33,6 +33,7 @@ from launch_scripts.cli import (
     curve_keys_from_args,
     endpoint_printer,
     non_negative_float,
+    positive_float,
     positive_int,
     stop_on_signals,
 )
@@ -56,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="realtime: keep the spacing of the frames' timestamps (default for files and sim); "
                         "rate: --rate-hz; fast: no wait (default for cameras, which pace themselves, and RealSense "
                         "recordings, which the SDK plays at their pace)")
-    g.add_argument("--rate-hz", type=float, help="frames per second with --pacing rate")
+    g.add_argument("--rate-hz", type=positive_float, help="frames per second with --pacing rate")
     g.add_argument("--loop", action="store_true", help="start over at the end (files and sim)")
     g.add_argument("--max-frames", type=positive_int, help="stop after this many frames")
     g.add_argument("--start-delay-s", type=non_negative_float, default=0.5,
@@ -145,6 +146,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.pacing == "rate" and args.rate_hz is None:
         parser.error("--pacing rate needs --rate-hz HZ (frames per second)")
+    if args.rate_hz is not None and args.pacing != "rate":
+        parser.error("--rate-hz goes with --pacing rate")
     configure_logging(args.log_level)
     stop = threading.Event()
     stop_on_signals(stop)

@@ -59,6 +59,21 @@ def test_publish_frames_rate_pacing_needs_a_rate(capsys):
                                        "(frames per second)\n")
 
 
+@pytest.mark.parametrize("args, message", [
+    (["--pacing", "rate", "--rate-hz", "0"], "argument --rate-hz: expected a number > 0, got 0"),
+    (["--rate-hz", "5"], "--rate-hz goes with --pacing rate"),  # silently ignored before
+])
+def test_publish_frames_takes_a_positive_rate_and_only_to_pace_by_it(args, message, capsys):
+    from launch_scripts.publish_frames import main
+
+    with pytest.raises(SystemExit) as stop:
+        main(["sim", *args])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("python -m launch_scripts.publish_frames") and err.endswith(f"error: {message}\n")
+    assert err.count("\n") == 1
+
+
 def test_reference_masks_names_the_seed_mask_option(tmp_path, capsys):
     from launch_scripts.reference_masks import main
     from tests.render import write_sheet_recording
