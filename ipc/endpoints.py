@@ -40,7 +40,7 @@ PLANNER = tcp(LOOPBACK, PLANNER_PORT)
 
 def check_endpoint(endpoint: str) -> str:
     """``endpoint`` when ZeroMQ can bind or connect it as given: ``ipc://``, ``inproc://``, or
-    ``tcp://HOST:PORT`` with PORT in 1-65535 or ``*`` (ZeroMQ would take port 99999 as another
+    ``tcp://HOST:PORT`` with PORT in 0-65535 or ``*`` (ZeroMQ would take port 99999 as another
     port without a word). Raises ValueError naming what is wrong."""
     example = "such as tcp://127.0.0.1:5563"
     if endpoint.startswith(("ipc://", "inproc://")):
@@ -48,10 +48,10 @@ def check_endpoint(endpoint: str) -> str:
     if not endpoint.startswith("tcp://"):
         raise ValueError(f"expected a ZeroMQ endpoint {example}, got {endpoint!r}")
     host, colon, port = endpoint[len("tcp://"):].rpartition(":")
-    if not colon or not host:
+    if not colon or not host or "]" in port:  # no port, or an IPv6 address without one: tcp://[::1]
         raise ValueError(f"expected tcp://HOST:PORT, {example}, got {endpoint!r}")
-    if port != "*" and not (port.isdigit() and 1 <= int(port) <= 65535):
-        raise ValueError(f"expected a port in 1-65535 or *, got {port!r} in {endpoint!r}")
+    if port != "*" and not (port.isdigit() and int(port) <= 65535):
+        raise ValueError(f"expected a port in 0-65535 or *, got {port!r} in {endpoint!r}")
     return endpoint
 
 

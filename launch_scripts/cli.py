@@ -15,6 +15,7 @@ import re
 import signal
 import sys
 import threading
+from pathlib import Path
 
 from ipc.endpoints import check_endpoint, is_loopback
 
@@ -117,6 +118,26 @@ def positive_float(text: str) -> float:
     return value
 
 
+def output_problem(path, is_file: bool) -> str | None:
+    """Why a command could not write its output ``path`` (a file when ``is_file``, else a folder
+    to write files in), or None when it can: checked, and the folder made, before the work
+    that produces the output, so that a long run does not fail at its end."""
+    path = Path(path)
+    folder = path.parent if is_file else path
+    if is_file and path.is_dir():
+        return "is a folder, expected a file"
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        return f"{folder} is a file, expected a folder" if is_file else "is a file, expected a folder"
+    except OSError as e:
+        return f"cannot make the folder {folder} ({e.strerror or e})" if is_file else \
+            f"cannot make this folder ({e.strerror or e})"
+    if not os.access(folder, os.W_OK | os.X_OK) or (is_file and path.exists() and not os.access(path, os.W_OK)):
+        return "cannot write there"
+    return None
+
+
 def field_docs(cls) -> dict[str, str]:
     """Field name -> description, from a dataclass's docstring, which lists its fields as
     ``name : text`` or ``name_a, name_b : text`` lines, a description going on over the
@@ -192,11 +213,11 @@ def tracker_config_from_args(args):
     for f in dataclasses.fields(TrackerConfig):
         value = getattr(args, f.name, None)
         if value is not None:
-            allowed = PARAMETER_RANGES.get(f.name)
-            # the ranges the service allows over the wire: a mesh spacing of 5 m or 0.1 mm would
-            # not be refused by the tracker, only make it work for hours
-            if allowed is not None and value not in allowed:
-                raise ValueError(f"--{f.name.replace('_', '-')}: expected a value in {allowed}, got {value:g}")
+            # the service's range for the mesh spacing: 5 m or 0.1 mm would not be refused by
+            # the tracker, only make it work for hours (the other options may go beyond what the
+            # service takes over the wire: an offline run may spend more time on each frame)
+            if f.name == "spacing_m" and value not in PARAMETER_RANGES["spacing_m"]:
+                raise ValueError(f"--spacing-m: expected a value in {PARAMETER_RANGES['spacing_m']}, got {value:g}")
             overrides[f.name] = tuple(value) if isinstance(value, list) else value
     return TrackerConfig.realtime(**overrides) if args.preset == "realtime" else TrackerConfig(**overrides)
 

@@ -31,6 +31,7 @@ from launch_scripts.cli import (
     add_security_arguments,
     configure_logging,
     curve_keys_from_args,
+    endpoint,
     endpoint_printer,
     non_negative_float,
     positive_float,
@@ -51,7 +52,7 @@ from perception.sources import (
 def build_parser() -> argparse.ArgumentParser:
     common = OneLineParser(add_help=False)
     g = common.add_argument_group("publishing")
-    g.add_argument("--endpoint", default=endpoints.FRAMES,
+    g.add_argument("--endpoint", type=endpoint, default=endpoints.FRAMES,
                    help=f"endpoint to bind (default {endpoints.FRAMES}; tcp://127.0.0.1:* picks a free port)")
     g.add_argument("--pacing", choices=Pacing.MODES,
                    help="realtime: keep the spacing of the frames' timestamps (default for files and sim); "

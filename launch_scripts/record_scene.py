@@ -62,14 +62,17 @@ def make_output_folder(out_dir: Path) -> Path | None:
     topmost folder this created, or None when ``out_dir`` already existed. raises OSError (the
     folders it created removed again)."""
     created = None
-    for folder in (out_dir, *out_dir.parents):
+    for folder in (out_dir.resolve(), *out_dir.resolve().parents):  # resolved: "new/../seq" makes only seq
         if folder.exists() or folder.is_symlink():
             break
         created = folder
-    out_dir.mkdir(parents=True, exist_ok=True)
-    if not os.access(out_dir, os.W_OK | os.X_OK):
-        remove_output(out_dir, created)
-        raise PermissionError(13, "Permission denied")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        if not os.access(out_dir, os.W_OK | os.X_OK):
+            raise PermissionError(13, "Permission denied")
+    except OSError:
+        remove_output(out_dir, created)  # the parents made before the failure too
+        raise
     return created
 
 

@@ -39,6 +39,7 @@ from launch_scripts.cli import (
     add_log_level_argument,
     add_tracker_arguments,
     configure_logging,
+    output_problem,
     positive_int,
     tracker_config_from_args,
 )
@@ -73,7 +74,9 @@ def track_sequence(args) -> dict:
     if args.occluder_masks is not None and not args.occluder_masks.is_dir():
         raise ValueError(f"--occluder-masks {args.occluder_masks}: not a directory")
     n = len(seq) if args.max_frames is None else min(len(seq), args.max_frames)
-    output = _writable(args.output)
+    problem = output_problem(args.output, is_file=True)
+    if problem:
+        raise ValueError(f"--output {args.output}: {problem}")
     tracker = MeshTracker(config)
     for d in (args.overlay_dir, args.ply_dir):
         if d is not None:
@@ -94,21 +97,15 @@ def track_sequence(args) -> dict:
         if args.ply_dir is not None:
             (args.ply_dir / f"{i:06d}.ply").write_bytes(ply_bytes(estimate.vertices, estimate.faces))
     result = estimate_arrays(estimates, timestamps)
-    with open(output, "wb") as f:  # a file object: numpy adds no ".npz" to the name given
-        np.savez_compressed(f, **result)
-    return result
-
-
-def _writable(path: Path) -> Path:
-    """``path`` once its folder exists and may be written in (checked before tracking, not
-    after); raises ValueError naming ``--output`` otherwise."""
+    # written beside it, then moved over it: an interrupted write leaves an earlier EST.npz whole
+    partial = args.output.with_name(args.output.name + ".partial")
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise ValueError(f"--output {path}: cannot make its folder ({e.strerror or e})") from None
-    if path.is_dir() or not os.access(path.parent, os.W_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        raise ValueError(f"--output {path}: cannot write a file there")
-    return path
+        with open(partial, "wb") as f:  # a file object: numpy adds no ".npz" to the name given
+            np.savez_compressed(f, **result)
+        os.replace(partial, args.output)
+    finally:
+        partial.unlink(missing_ok=True)
+    return result
 
 
 def estimate_arrays(estimates: list, timestamps: list) -> dict:

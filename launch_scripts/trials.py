@@ -58,7 +58,7 @@ from tqdm import tqdm
 
 from ipc.messages import GraspPlan
 from launch_scripts._child import die_with_parent
-from launch_scripts.cli import OneLineParser, add_log_level_argument, configure_logging, positive_int
+from launch_scripts.cli import OneLineParser, add_log_level_argument, configure_logging, output_problem, positive_int
 from launch_scripts.trial_runner.report import markdown, report, write_json
 from launch_scripts.trial_runner.trial import (
     TASKS,
@@ -435,23 +435,10 @@ def _run_ray(seeds: list[int], config: TrialConfig, workers: int, progress, addr
     return records
 
 
-def _unwritable(folder: Path) -> str | None:
-    """Why files cannot be written in ``folder`` (made if missing), or None when they can."""
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-    except FileExistsError:
-        return "is a file, expected a folder"
-    except OSError as e:
-        return f"cannot make this folder ({e.strerror or e})"
-    return None if os.access(folder, os.W_OK) else "cannot write in this folder"
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     seeds = sorted({s for group in args.seeds for s in group})
-    if args.json.exists() and args.json.is_dir():
-        parser.error(f"--json {args.json} is a directory")
     try:
         engine, address = engine_and_address(args.engine, args.ray_address, os.environ)
     except ValueError as e:
@@ -467,12 +454,11 @@ def main(argv: list[str] | None = None) -> int:
     log_dir = args.log_dir if args.log_dir is not None else args.json.parent / "logs"
     # every folder the run writes in, made once the options are known good: a run of many
     # trials must not fail at its end
-    for option, folder in (("--json", args.json.parent), ("--markdown", args.markdown and args.markdown.parent),
-                           ("--pictures", args.pictures), ("--log-dir", log_dir)):
-        if folder is not None:
-            why = _unwritable(folder)
-            if why:
-                parser.error(f"{option} {folder}: {why}")
+    for option, path, is_file in (("--json", args.json, True), ("--markdown", args.markdown, True),
+                                  ("--pictures", args.pictures, False), ("--log-dir", log_dir, False)):
+        problem = None if path is None else output_problem(path, is_file)
+        if problem:
+            parser.error(f"{option} {path}: {problem}")
     unfold = args.task == "unfold"
     configs = [TrialConfig(task=args.task, regrasp=regrasp, kind=args.kind, observe_frames=args.frames,
                            log_dir=str(log_dir),

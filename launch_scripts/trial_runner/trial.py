@@ -401,10 +401,12 @@ def run_trial(seed: int, config: TrialConfig | None = None,
         except (ChildError, TimeoutError, OSError, RuntimeError, ValueError) as e:
             log.warning("seed %d: %s: %s", seed, type(e).__name__, e)
             log.debug("seed %d:\n%s", seed, traceback.format_exc())  # a bug looks like a bad option: show where
-            record.update(success=False, failure=f"error: {type(e).__name__}: {' '.join(str(e).split())}")
+            record.update(success=False, corner_success=False,
+                          failure=f"error: {type(e).__name__}: {' '.join(str(e).split())}")
         except Exception as e:  # noqa: BLE001 -- an unexpected failure of one trial must not stop a run of many
             log.error("seed %d failed:\n%s", seed, traceback.format_exc())
-            record.update(success=False, failure=f"error: {type(e).__name__}: {' '.join(str(e).split())}")
+            record.update(success=False, corner_success=False,
+                          failure=f"error: {type(e).__name__}: {' '.join(str(e).split())}")
     record.setdefault("timing", {})["total_s"] = round(time.perf_counter() - start, 2)
     return record
 

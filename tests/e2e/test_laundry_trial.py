@@ -101,7 +101,7 @@ def test_a_trial_that_fails_after_its_verdict_is_no_success(tmp_path):
     config = TrialConfig(observe_frames=3, pictures_dir=str(tmp_path / "file"), log_dir=str(tmp_path))
     record = run_trial(0, config)
     assert record["failure"].startswith("error: "), record["failure"]
-    assert record["success"] is False
+    assert record["success"] is False and record["corner_success"] is False
 
 
 def test_a_cloth_held_up_is_grasped_at_its_lowest_point_from_the_side(tmp_path):

@@ -83,8 +83,14 @@ def test_tracker_options_come_from_the_config_fields():
                                              "--outlier-radii-m", "0.1", "0.03"]))
     assert config == TrackerConfig.realtime(use_depth=False, outlier_radii_m=(0.1, 0.03))
     assert tracker_config_from_args(parse(["SEQ", "-o", "x.npz"])) == TrackerConfig()
-    with pytest.raises(ValueError, match="--lambda-d: expected a value in \\[0, 100\\], got -1"):
+    with pytest.raises(ValueError, match="lambda_d: expected a non-negative number"):
         tracker_config_from_args(parse(["SEQ", "-o", "x.npz", "--lambda-d", "-1"]))
+    # an offline run may spend more on a frame than the service takes over the wire...
+    assert tracker_config_from_args(parse(["SEQ", "-o", "x.npz", "--max-iterations", "150"])).max_iterations == 150
+    # ...but not a mesh spacing that would take hours (0.1 mm) or give a handful of vertices (5 m)
+    for spacing in ("0.0001", "5"):
+        with pytest.raises(ValueError, match=f"--spacing-m: expected a value in 0 or \\[0.005, 1\\], got {spacing}"):
+            tracker_config_from_args(parse(["SEQ", "-o", "x.npz", "--spacing-m", spacing]))
 
 
 def test_field_docs_read_grouped_and_continued_entries():
@@ -130,8 +136,9 @@ def test_entry_points_share_their_flag_names():
 
 @pytest.mark.parametrize("text, ok", [
     ("tcp://127.0.0.1:5562", True), ("tcp://127.0.0.1:*", True), ("tcp://[::1]:5562", True), ("ipc:///tmp/x", True),
-    ("inproc://frames", True), ("tcp://127.0.0.1:99999", False), ("tcp://127.0.0.1:0", False),
-    ("tcp://127.0.0.1", False), ("tcp://:5562", False), ("127.0.0.1:5562", False), ("tcp://host:http", False),
+    ("inproc://frames", True), ("tcp://127.0.0.1:0", True), ("tcp://*:5560", True), ("tcp://eth0:5560", True),
+    ("tcp://127.0.0.1:99999", False), ("tcp://127.0.0.1", False), ("tcp://[::1]", False), ("tcp://:5562", False),
+    ("127.0.0.1:5562", False), ("tcp://host:http", False), ("tcp://127.0.0.1:-1", False),
 ])
 def test_an_endpoint_zeromq_would_take_for_another_is_refused(text, ok):
     from ipc.endpoints import check_endpoint
@@ -154,4 +161,4 @@ def test_the_services_refuse_a_port_out_of_range_in_one_line(module, option, cap
         parser.parse_args([option, "tcp://127.0.0.1:99999"])
     assert e.value.code == 2
     assert capsys.readouterr().err.strip().endswith(
-        f"error: argument {option}: expected a port in 1-65535 or *, got '99999' in 'tcp://127.0.0.1:99999'")
+        f"error: argument {option}: expected a port in 0-65535 or *, got '99999' in 'tcp://127.0.0.1:99999'")

@@ -83,3 +83,23 @@ def test_reference_masks_names_the_seed_mask_option(tmp_path, capsys):
     for seed, problem in ((tmp_path / "nope.png", "no such file"), (tmp_path / "text.png", "not a readable image")):
         assert main([str(tmp_path / "seq"), "--seed-mask", str(seed), "--replace", "-q"]) == 2
         assert capsys.readouterr().err == f"error: --seed-mask {seed}: {problem}\n"
+
+
+def test_track_demo_scores_the_frames_of_the_first_mesh_when_a_new_one_is_laid(tmp_path, monkeypatch, capsys):
+    import json
+
+    import launch_scripts.track as track
+    from launch_scripts import track_demo
+    from perception.tracker import MeshTracker
+
+    class LaysANewMesh(MeshTracker):
+        """Lays a new mesh on the third frame, as a tracker that found a plain cloth again does."""
+
+        def track(self, frame):
+            return self.initialise(frame) if frame.seq == 2 else super().track(frame)
+
+    monkeypatch.setattr(track, "MeshTracker", LaysANewMesh)
+    assert track_demo.main(["--frames", "4", "--out", str(tmp_path)]) == 0  # a NaN traceback before
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["frames"] == 4 and summary["frames_scored"] == 2 and summary["mean_mm"] < 5
+    assert "laid a new mesh at frame 2: frames 0-1 are scored" in capsys.readouterr().out

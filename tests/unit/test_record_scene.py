@@ -120,6 +120,14 @@ def test_an_output_folder_that_cannot_be_made_is_one_line_before_simulating(tmp_
     assert reason is None or reason in lines[0]
 
 
+def test_a_folder_that_fails_half_made_leaves_none_of_its_new_parents(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr("launch_scripts.record_scene.make_scene", _no_simulation)
+    with pytest.raises(SystemExit):
+        main(["poster_bend", str(tmp_path / "new" / ("x" * 300)), "--quiet"])  # a name too long for the disk
+    assert "File name too long" in capsys.readouterr().err
+    assert not (tmp_path / "new").exists()
+
+
 def _interrupted_recording(scene, out_dir, *args, **kwargs):
     (Path(out_dir) / "rgb").mkdir(parents=True)
     (Path(out_dir) / "rgb" / "0.png").write_bytes(b"half")

@@ -419,18 +419,20 @@ def test_the_baseline_executes_the_planners_highest_point_even_for_a_held_cloth(
     assert default_controller("boundary") is lowest_point_when_held
 
 
-@pytest.mark.parametrize("option, message", [
-    ("--json", "--json {tmp}/file/r.json".replace("/r.json", "") + ": is a file, expected a folder"),
-    ("--pictures", "--pictures {tmp}/file: is a file, expected a folder"),
-    ("--markdown", "--markdown {tmp}/file: is a file, expected a folder"),
+@pytest.mark.parametrize("option, path, message", [
+    ("--json", "file/r.json", "--json {tmp}/file/r.json: {tmp}/file is a file, expected a folder"),
+    ("--markdown", "file/s.md", "--markdown {tmp}/file/s.md: {tmp}/file is a file, expected a folder"),
+    ("--markdown", "folder", "--markdown {tmp}/folder: is a folder, expected a file"),  # failed after the trials
+    ("--json", "folder", "--json {tmp}/folder: is a folder, expected a file"),
+    ("--pictures", "file", "--pictures {tmp}/file: is a file, expected a folder"),
+    ("--log-dir", "file/logs", "--log-dir {tmp}/file/logs: cannot make this folder (Not a directory)"),
 ])
-def test_trials_refuse_an_output_they_cannot_write_before_running_any(tmp_path, capsys, option, message):
+def test_trials_refuse_an_output_they_cannot_write_before_running_any(tmp_path, capsys, option, path, message):
     from launch_scripts.trials import main
 
     (tmp_path / "file").write_text("a file, not a folder")
-    paths = {"--json": tmp_path / "r.json", "--pictures": tmp_path / "pictures", "--markdown": tmp_path / "s.md"}
-    paths[option] = tmp_path / "file" / ("r.json" if option == "--json" else "s.md") if option != "--pictures" \
-        else tmp_path / "file"
+    (tmp_path / "folder").mkdir()
+    paths = {"--json": tmp_path / "r.json", "--markdown": tmp_path / "s.md", option: tmp_path / path}
     args = ["--seeds", "0", "--quiet"] + [a for k, v in paths.items() for a in (k, str(v))]
     with pytest.raises(SystemExit) as e:
         main(args)
