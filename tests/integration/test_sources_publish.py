@@ -60,7 +60,7 @@ def test_publish_frames_command_fails_with_one_line(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(REPO)}
     (tmp_path / "a.mkv").write_bytes(b"")
     for args, message in ((["sequence", str(tmp_path / "none")], "no such directory"),
-                          (["sequence", str(tmp_path), "--pacing", "rate"], "Pacing.rate_hz"),
+                          (["sequence", str(tmp_path), "--pacing", "rate"], "--pacing rate needs --rate-hz HZ"),
                           (["kinect", "--recording", str(tmp_path / "none.mkv")], "none.mkv not found"),
                           (["kinect", "--recording", str(tmp_path / "a.mkv"), "--fps", "15"], "own colour resolution")):
         proc = subprocess.run([sys.executable, "-m", "launch_scripts.publish_frames", *args], capture_output=True,
