@@ -22,12 +22,16 @@ from ipc.transport import create_key_directory
 from launch_scripts.cli import OneLineParser
 
 
-def main(argv=None) -> int:
+def build_parser() -> OneLineParser:
     parser = OneLineParser(prog="python -m launch_scripts.curve_keys", description=__doc__.split("\n\n")[0])
     parser.add_argument("directory", metavar="DIR", help="key directory to create or extend")
     parser.add_argument("--client", action="append", metavar="NAME",
                         help="a client to create a key pair for and authorise (repeatable; default: controller)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     if not zmq.has("curve"):
         print("error: this libzmq was built without CURVE", file=sys.stderr)
         return 2

@@ -131,8 +131,7 @@ def write_section(path: Path, section: str, begin: str = BEGIN, end: str = END) 
     path.write_text(text)
 
 
-@exit_130_on_ctrl_c
-def main(argv=None) -> int:
+def build_parser() -> OneLineParser:
     from sim.scenes import HANDLED_SCENES, MORE_HANDLED_SCENES, PAPER_SCENES
 
     p = OneLineParser(prog="python -m launch_scripts.evaluate", description=__doc__.split("\n\n")[0])
@@ -154,8 +153,15 @@ def main(argv=None) -> int:
                    help="sensor noise (default: both for the paper table, noisy for --handled)")
     p.add_argument("--quiet", action="store_true", help="no progress bars (--handled)")
     add_log_level_argument(p)
+    return p
+
+
+@exit_130_on_ctrl_c
+def main(argv=None) -> int:
+    from sim.scenes import HANDLED_SCENES, MORE_HANDLED_SCENES, PAPER_SCENES
+
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = p.parse_args(argv)
+    args = build_parser().parse_args(argv)
     command = command_line(argv)
     configure_logging(args.log_level, "%(levelname)s:%(name)s:%(message)s")
     allowed = HANDLED_SCENES + MORE_HANDLED_SCENES if args.handled else PAPER_SCENES

@@ -64,7 +64,7 @@ def read_seed_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
         raise ValueError(f"--seed-mask {path}: {message}") from None
 
 
-def main(argv=None) -> int:
+def build_parser() -> OneLineParser:
     p = OneLineParser(prog="python -m launch_scripts.reference_masks", description=__doc__.split("\n\n")[0])
     p.add_argument("sequence", type=Path, help="converted sequence folder")
     p.add_argument("--seed-mask", type=Path, help="8-bit PNG, non-zero on the object in the first frame "
@@ -73,7 +73,11 @@ def main(argv=None) -> int:
     p.add_argument("--replace", action="store_true", help="overwrite masks the folder already has")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     add_log_level_argument(p)
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     configure_logging(args.log_level, "%(levelname)s %(name)s: %(message)s")
     try:
         seq = open_sequence(args.sequence)
