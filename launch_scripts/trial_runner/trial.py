@@ -58,8 +58,10 @@ from sim.ground_truth import error_summary, vertex_errors
 from sim.laundry.controller import View, default_controller
 from sim.laundry.judge import judge
 from sim.laundry.pictures import caption, draw_plan, draw_point, save_png, strip
+from sim.laundry.scene import RobotHand
 from sim.laundry.segment import mask_from_reference
 from sim.laundry.unfold import UnfoldConfig
+from sim.robot_drawing import GripperLook
 
 log = logging.getLogger(__name__)
 
@@ -500,11 +502,18 @@ def _observe_plan_execute(scene, link: _Link, config: TrialConfig, choose_plan, 
     def on_phase(phase: str) -> None:
         if config.pictures_dir is None:
             return
+        # the grasp's gripper, drawn in the pictures only: the frames the tracker saw had none
+        hand = RobotHand(scene.physics.grippers[-1], GripperLook(), None, 0.0)
         if phase == "closed":
-            closed = draw_point(scene.render().rgb, scene.camera.K, plan.position)
+            scene.hands.append(hand)
+            try:
+                closed = draw_point(scene.render().rgb, scene.camera.K, plan.position)
+            finally:
+                scene.hands.remove(hand)
             panels.append(caption(closed, "fingers closed (red ring: the plan's grasp point)"))
         else:
-            panels.append(caption(wide.render(scene.physics, scene.spec.texture_rgb).rgb, "lifted and settled (wide view)"))
+            lifted = wide.render(scene.physics, scene.spec.texture_rgb, solids=hand.drawn()).rgb
+            panels.append(caption(lifted, "lifted and settled (wide view)"))
 
     result = execute_grasp(scene, plan, config.execution, on_phase=on_phase)
     verdict = judge(config.kind, result.grasped_uv, result.lifted_clear, scene.spec.corners_uv, scene.spec.outline_uv)
