@@ -25,14 +25,18 @@ from perception.tracker import TrackerConfig  # noqa: E402
 from sim.evaluation import cpd_recording, record_scene, track_recording  # noqa: E402
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--scene", default="towel_sway")
     p.add_argument("--frames", type=int, default=40)
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--spacing-m", type=float, default=0.027, help="mesh spacing (0.027 gives ~500 vertices on the towel)")
     p.add_argument("--no-cpd", action="store_true")
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
 
     rec = record_scene(args.scene, seed=0, noise=True, n_frames=args.frames)
     h, w = rec.frames[0].depth_m.shape

@@ -298,7 +298,7 @@ def fuzz_run(run: int, args, pub, control, planner, procs, watch) -> dict:
     }
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--messages", type=int, default=100_000)
     p.add_argument("--runs", type=int, default=2)
@@ -308,7 +308,11 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=20261130)
     p.add_argument("--output", type=Path)
     p.add_argument("--services-log", type=Path, default=Path(os.devnull), help="where the services' logs go")
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     services_log = args.services_log.open("a")
 
     ctx = zmq.Context.instance()

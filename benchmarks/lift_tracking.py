@@ -159,13 +159,18 @@ def track(lift: dict, changes: dict, background: bool, hold: bool, lowest: bool)
             "ms": float(np.median([e.timing_ms for e in estimates[1:]]))}
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python benchmarks/lift_tracking.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--seeds", type=int, nargs="+", default=[2, 4, 22])
     p.add_argument("--state", default="flat", help="initial state forced on every seed (default flat; '' for drawn)")
     p.add_argument("--markdown", type=Path, help="also write the table there")
     p.add_argument("--variants", type=int, nargs="+", metavar="I",
                    help=f"run only these trackers, by position in the list (1-{len(VARIANTS)}; default all)")
+    return p
+
+
+def main(argv=None) -> int:
+    p = build_parser()
     args = p.parse_args(argv)
     if any(not 1 <= i <= len(VARIANTS) for i in args.variants or ()):
         p.error(f"--variants: positions run from 1 to {len(VARIANTS)}, got {args.variants}")

@@ -54,11 +54,15 @@ def poses(n: int, rng: np.random.Generator) -> dict[str, list[np.ndarray]]:
     return out
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="python benchmarks/panda_reach.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--poses", type=int, default=100, help="poses of each kind (default 100)")
     p.add_argument("--seed", type=int, default=1)
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     drawn = poses(args.poses, np.random.default_rng(args.seed))
     print(f"| mount (left arm's shoulder) | {' | '.join(drawn)} |")
     print("| --- |" + " --- |" * len(drawn))

@@ -71,11 +71,15 @@ def run(preset: str, start_px: int, speed_px: int, gap_m: float) -> float:
     return worst
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--presets", nargs="+", choices=("default", "realtime"), default=["default", "realtime"])
     parser.add_argument("--markdown", type=Path, help="also write the table here")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     runs = list(itertools.product(args.presets, STARTS_PX, SPEEDS_PX, GAPS_M))
     worst = {run_args: run(*run_args) for run_args in tqdm(runs, desc="runs", unit="run")}
     lines = [f"machine: {os.cpu_count()} cores; worst frame's mean vertex error, mm, by bar start (px), "

@@ -215,7 +215,7 @@ def _strip(frames_by_index: dict, estimates: dict, picks: list[int], box, K, lab
     return cv2.resize(strip, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA) if scale < 1.0 else strip
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--data", type=Path, default=None, help="folder of converted recordings (default: $CLOTHKIT_DATA, "
                    "else /work/data)")
@@ -228,7 +228,11 @@ def main(argv=None) -> int:
     p.add_argument("--json", type=Path, default=Path("out/real_faults/summary.json"))
     p.add_argument("--pictures", type=Path, default=Path("out/real_faults"))
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
 
     root = args.data if args.data is not None else data_root()
     path = root / args.recording

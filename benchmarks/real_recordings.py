@@ -206,7 +206,7 @@ def table_row(name: str, preset: str, s: dict) -> str:
 
 
 @exit_130_on_ctrl_c
-def main(argv=None) -> int:
+def build_parser() -> OneLineParser:
     p = OneLineParser(prog="python benchmarks/real_recordings.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--data", type=Path, default=None, help="folder of converted recordings (default: $CLOTHKIT_DATA, "
                                                            "else /work/data)")
@@ -222,7 +222,11 @@ def main(argv=None) -> int:
     p.add_argument("--json", type=Path, default=Path("out/real_recordings/summary.json"))
     p.add_argument("--pictures", type=Path, default=Path("out/real_recordings"))
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
     try:
         overrides = parse_overrides(args.overrides)
         configs = {name: with_overrides(PRESETS[name](), overrides) for name in args.preset}

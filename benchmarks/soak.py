@@ -104,7 +104,7 @@ def slope_mb_per_hour(times_s: list[float], values: list[float]) -> float | None
     return float(np.polyfit(np.asarray(times_s) / 3600.0, np.asarray(values), 1)[0])
 
 
-def main(argv=None) -> int:
+def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--duration-s", type=float, default=3600.0)
     p.add_argument("--warmup-s", type=float, default=60.0, help="excluded from the growth figures (default 60)")
@@ -113,7 +113,11 @@ def main(argv=None) -> int:
     p.add_argument("--status-period-s", type=float, default=5.0)
     p.add_argument("--rate-hz", type=float, default=30.0)
     p.add_argument("--output", type=Path, help="write the summary as JSON here")
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
 
     procs: list[subprocess.Popen] = []
     with tempfile.TemporaryDirectory(prefix="soak-") as tmp:

@@ -1,7 +1,9 @@
-"""Every command line the README and docs/ give for a launch script parses with that script's
-parser: a renamed or newly required option shows here, not on a user's machine."""
+"""Every command line the README and docs/ give for a launch script or a benchmark parses with
+that script's parser: a renamed or newly required option shows here, not on a user's machine
+(nor in a figure's command that no longer reproduces it)."""
 
 import importlib
+import importlib.util
 import re
 import shlex
 from pathlib import Path
@@ -10,7 +12,7 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[2]
 DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
-COMMAND = re.compile(r"^python -m (launch_scripts\.[a-z_]+|perception\.track)\b(.*)$", re.S)
+COMMAND = re.compile(r"^python (?:-m (launch_scripts\.[a-z_]+|perception\.track)|(benchmarks/[a-z_]+\.py))\b(.*)$", re.S)
 #: usage lines ("[--frames EP]", "{sim,sequence}", "SEQ ...") show a command's shape, not a command
 SYNOPSIS = re.compile(r"[\[\]{}|<>]|\.\.\.")
 
@@ -27,8 +29,8 @@ def documented_commands() -> list[tuple[str, str, str]]:
         lines += [" ".join(span.split()) for span in re.findall(r"`([^`]+)`", prose)]
         for line in lines:
             m = COMMAND.match(line.split(" #")[0].strip().removesuffix("&").strip())
-            if m and m.group(2).strip() and not SYNOPSIS.search(m.group(2)):
-                found.append((doc.name, m.group(1), m.group(2).strip()))
+            if m and not SYNOPSIS.search(m.group(3)) and (m.group(2) or m.group(3).strip()):
+                found.append((doc.name, m.group(1) or m.group(2), m.group(3).strip()))
     return found
 
 
@@ -37,17 +39,25 @@ COMMANDS = documented_commands()
 
 def test_the_docs_give_command_lines_to_check():
     modules = {module for _, module, _ in COMMANDS}
-    assert len(COMMANDS) >= 60 and {"launch_scripts.trials", "perception.track", "launch_scripts.perception_service",
-                                     "launch_scripts.planner_service", "launch_scripts.publish_frames"} <= modules
+    assert len(COMMANDS) >= 80 and {"launch_scripts.trials", "perception.track", "launch_scripts.perception_service",
+                                     "launch_scripts.planner_service", "launch_scripts.publish_frames",
+                                     "benchmarks/bench_tracker.py", "benchmarks/real_recordings.py"} <= modules
+
+
+def _script(module: str):
+    """The module of ``python -m MODULE`` or of ``python benchmarks/NAME.py`` (not a package)."""
+    if module.endswith(".py"):
+        spec = importlib.util.spec_from_file_location(Path(module).stem, REPO / module)
+        script = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(script)
+        return script
+    return importlib.import_module("launch_scripts.track" if module == "perception.track" else module)
 
 
 @pytest.mark.parametrize("doc, module, arguments", COMMANDS, ids=[f"{d}:{m} {a}"[:90] for d, m, a in COMMANDS])
 def test_a_documented_command_line_parses(doc, module, arguments, capsys):
-    script = importlib.import_module("launch_scripts.track" if module == "perception.track" else module)
-    if not hasattr(script, "build_parser"):
-        pytest.skip(f"{module} builds its parser inside main")
     try:
-        script.build_parser().parse_args(shlex.split(arguments))
+        _script(module).build_parser().parse_args(shlex.split(arguments))
     except SystemExit as stop:
         if stop.code:  # 0: --help
-            pytest.fail(f"{doc}: python -m {module} {arguments}: {capsys.readouterr().err.strip()}")
+            pytest.fail(f"{doc}: {module} {arguments}: {capsys.readouterr().err.strip()}")
