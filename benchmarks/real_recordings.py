@@ -205,7 +205,6 @@ def table_row(name: str, preset: str, s: dict) -> str:
             f"{s['confidence_mean']:5.2f} {s['confidence_min']:5.2f} {s['median_ms']:7.1f}  {flow}")
 
 
-@exit_130_on_ctrl_c
 def build_parser() -> OneLineParser:
     p = OneLineParser(prog="python benchmarks/real_recordings.py", description=__doc__.split("\n\n")[0])
     p.add_argument("--data", type=Path, default=None, help="folder of converted recordings (default: $CLOTHKIT_DATA, "
@@ -225,6 +224,7 @@ def build_parser() -> OneLineParser:
     return p
 
 
+@exit_130_on_ctrl_c
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
