@@ -54,16 +54,6 @@ def contact_sheets(rgbs: list[np.ndarray], depths: list[np.ndarray], masks: list
     return sheets
 
 
-def read_seed_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
-    """``perception.sequence.read_mask`` of ``--seed-mask PATH``; raises ValueError (one line)
-    naming the option."""
-    try:
-        return read_mask(path, shape)
-    except ValueError as exc:
-        message = str(exc).removeprefix(f"init mask {path}: ")
-        raise ValueError(f"--seed-mask {path}: {message}") from None
-
-
 def build_parser() -> OneLineParser:
     p = OneLineParser(prog="python -m launch_scripts.reference_masks", description=__doc__.split("\n\n")[0])
     p.add_argument("sequence", type=Path, help="converted sequence folder")
@@ -83,7 +73,7 @@ def main(argv=None) -> int:
         seq = open_sequence(args.sequence)
         if (seq.path / MASKS_DIR).is_dir() and any((seq.path / MASKS_DIR).iterdir()) and not args.replace:
             raise ValueError(f"{seq.path / MASKS_DIR}: already holds masks; pass --replace to overwrite them")
-        seed = read_seed_mask(args.seed_mask, (seq.camera.height, seq.camera.width)) if args.seed_mask else None
+        seed = read_mask(args.seed_mask, (seq.camera.height, seq.camera.width), "--seed-mask") if args.seed_mask else None
         config = MaskConfig()
         rgbs, depths, masks = [], [], []
 

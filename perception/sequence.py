@@ -452,19 +452,20 @@ class SequenceWriter:
         return {"vertices": v, "faces": f.astype(np.int64), "uv": uv}
 
 
-def read_mask(path: Path, shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) bool mask from an 8-bit PNG, non-zero on the object."""
+def read_mask(path: Path, shape: tuple[int, int], what: str = "init mask") -> np.ndarray:
+    """(H, W) bool mask from an 8-bit PNG, non-zero on the object; raises ValueError (one line)
+    starting with ``what`` (the mask's name to the user, e.g. the option that gave it) and ``path``."""
     if not path.is_file():
-        raise ValueError(f"init mask {path}: no such file")
+        raise ValueError(f"{what} {path}: no such file")
     img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if img is None:
-        raise ValueError(f"init mask {path}: not a readable image")
+        raise ValueError(f"{what} {path}: not a readable image")
     if img.ndim == 3:
         img = img.max(axis=2)
     if img.shape != shape:
-        raise ValueError(f"init mask {path}: size {img.shape[1]}x{img.shape[0]} differs from the frames' "
+        raise ValueError(f"{what} {path}: size {img.shape[1]}x{img.shape[0]} differs from the frames' "
                          f"{shape[1]}x{shape[0]}")
     mask = img > 0
     if not mask.any():
-        raise ValueError(f"init mask {path}: empty (no non-zero pixel)")
+        raise ValueError(f"{what} {path}: empty (no non-zero pixel)")
     return mask

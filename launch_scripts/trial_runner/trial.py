@@ -403,14 +403,17 @@ def run_trial(seed: int, config: TrialConfig | None = None,
         except (ChildError, TimeoutError, OSError, RuntimeError, ValueError) as e:
             log.warning("seed %d: %s: %s", seed, type(e).__name__, e)
             log.debug("seed %d:\n%s", seed, traceback.format_exc())  # a bug looks like a bad option: show where
-            record.update(success=False, corner_success=False,
-                          failure=f"error: {type(e).__name__}: {' '.join(str(e).split())}")
+            _failed(record, e)
         except Exception as e:  # noqa: BLE001 -- an unexpected failure of one trial must not stop a run of many
             log.error("seed %d failed:\n%s", seed, traceback.format_exc())
-            record.update(success=False, corner_success=False,
-                          failure=f"error: {type(e).__name__}: {' '.join(str(e).split())}")
+            _failed(record, e)
     record.setdefault("timing", {})["total_s"] = round(time.perf_counter() - start, 2)
     return record
+
+
+def _failed(record: dict, error: Exception) -> None:
+    """``record`` of a trial that raised ``error``: no success, whatever was judged before."""
+    record.update(success=False, corner_success=False, failure=f"error: {type(error).__name__}: {' '.join(str(error).split())}")
 
 
 def _observe(scene, link: _Link, config: TrialConfig, reference) -> tuple[dict, dict, dict]:
