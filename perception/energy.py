@@ -308,10 +308,20 @@ class OutsideTerm:
     Nor is one on a pixel without measured depth: the segmentation may have missed the cloth
     there (a part of the table's colour, seen at a grazing angle, loses its depth).
 
+    With ``free_space_m``, only the vertices the camera sees past are pulled: those whose
+    pixel shows a surface more than ``free_space_m`` behind them in ``depth_m``. Nothing can
+    lie there, or the camera would see it instead of that surface, so this needs no
+    segmentation to trust (``MeshTracker``'s free-space term, ``TrackerConfig.lambda_f``):
+    a corner the mesh left in the air when a gripper carried the cloth's corner away, in front
+    of a wall far behind, is brought back; a vertex left on the table the cloth lay on, which
+    the table's depth explains, is not.
+
     outline_points : (P, 3) float64 metres, the object's outline in 3D
     mask : (H, W) bool object mask; K : (3, 3)
     vertex_mask : (N,) bool, the vertices seen (the only ones the term may pull)
     measured : (H, W) bool, the pixels with measured depth, or None for all
+    depth_m : (H, W) float metres, the frame's depth (0 or NaN: missing); needed with ``free_space_m``
+    free_space_m : float > 0 or None: pull only the vertices seen past by more than this
     """
 
     outline_points: np.ndarray
@@ -319,15 +329,21 @@ class OutsideTerm:
     K: np.ndarray
     vertex_mask: np.ndarray
     measured: np.ndarray | None = None
+    depth_m: np.ndarray | None = None
+    free_space_m: float | None = None
     name: str = "outside"
 
     def __post_init__(self):
+        if self.free_space_m is not None and (self.depth_m is None or not self.free_space_m > 0):
+            raise ValueError(f"OutsideTerm: free_space_m needs a positive value and depth_m, got {self.free_space_m!r} "
+                             f"and {'no' if self.depth_m is None else 'a'} depth image")
         self._tree = cKDTree(self.outline_points) if len(self.outline_points) else None
         self._last = None
 
     def offsets(self, V: np.ndarray) -> np.ndarray:
-        """(N, 3) v_i - q_i for the vertices seen outside the object, 0 for the others. The
-        last answer is kept, as in ``DepthTerm.lookup``."""
+        """(N, 3) v_i - q_i for the vertices seen outside the object (and, with
+        ``free_space_m``, seen past), 0 for the others. The last answer is kept, as in
+        ``DepthTerm.lookup``."""
         return _kept(self, V, self._offsets)
 
     def _offsets(self, V: np.ndarray) -> np.ndarray:
@@ -338,6 +354,10 @@ class OutsideTerm:
             outside = self.vertex_mask & inside & ~self.mask[rows, cols]
             if self.measured is not None:
                 outside &= self.measured[rows, cols]
+            if self.free_space_m is not None:
+                with np.errstate(invalid="ignore"):
+                    d = np.asarray(self.depth_m)[rows, cols]
+                    outside &= (d > 0) & (d > V[:, 2] + self.free_space_m)
             if outside.any():
                 _, idx = self._tree.query(V[outside])
                 out[outside] = V[outside] - self.outline_points[idx]

@@ -69,6 +69,7 @@ PARAMETER_RANGES = {
     "lambda_l": Range(0.0, 100.0),
     "lambda_h": Range(0.0, 1000.0),
     "lambda_o": Range(0.0, 100.0),
+    "lambda_f": Range(0.0, 100.0),
     "tether_slack": Range(0.0, 1.0),
     "alpha": Range(1e-3, 1e3),
     "max_iterations": Range(1, 100),

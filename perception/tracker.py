@@ -207,6 +207,12 @@ class TrackerConfig:
     lambda_o : weight of the outside term: vertices seen where the segmented object is not
         (the table a lifted cloth has left) are pulled to its outline (0, the default: off; it
         needs a segmentation to trust, such as the one a ``background`` gives)
+    lambda_f : weight of the free-space term, used when ``lambda_o`` is 0 (whose term pulls
+        these vertices too): vertices seen where the segmented object is not, and which the
+        camera sees past (the surface measured at their pixel lies more than
+        ``depth_outlier_m`` behind them, so the depth term ignores them), are pulled to the
+        object's outline (``perception.energy.OutsideTerm`` with ``free_space_m``); needs no
+        background. 0: off
     boundary_gate_m : boundary vertices farther than this from the outline are left alone
     velocity_prediction : fraction of the last inter-frame motion added to predict the next frame
     init_iterations : smoothing iterations when the mesh is laid on the first frame
@@ -257,6 +263,7 @@ class TrackerConfig:
     coarse_motion: bool = True
     self_occlusion: bool = True
     lambda_o: float = 0.0
+    lambda_f: float = 0.3
     boundary_gate_m: float = 0.06
     velocity_prediction: float = 0.5
     init_iterations: int = 10
@@ -274,7 +281,7 @@ class TrackerConfig:
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise ValueError(f"TrackerConfig.{name}: expected a positive number, got {v!r}")
         for name in ("spacing_m", "lambda_c", "lambda_d", "lambda_b", "lambda_m", "lambda_l", "lambda_h", "lambda_o",
-                     "tether_slack", "velocity_prediction",
+                     "lambda_f", "tether_slack", "velocity_prediction",
                      "min_predicted_decrease", "min_texture_snr"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
@@ -563,6 +570,9 @@ class MeshTracker:
         if cfg.lambda_o > 0 and observed is not None and len(obs.outline_cam):
             measured = None if frame is None else valid_depth(frame.depth_m)
             terms.append((cfg.lambda_o, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed, measured)))
+        elif cfg.lambda_f > 0 and observed is not None and frame is not None and len(obs.outline_cam):
+            terms.append((cfg.lambda_f, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed, depth_m=frame.depth_m,
+                                                    free_space_m=cfg.depth_outlier_m, name="free_space")))
         if observed is not None and prior is not None and cfg.lambda_m > 0 and not observed.all():
             terms.append((cfg.lambda_m, MotionPriorTerm.around(self._edges, ~observed, prior)))
         if cfg.lambda_l > 0 and self._stretch is not None:

@@ -300,6 +300,33 @@ def test_outside_leaves_vertices_on_pixels_without_depth_where_they_are():
     assert np.linalg.norm(OutsideTerm(outline, mask, K, np.ones(3, bool)).evaluate(V)[1], axis=1)[1] > 0
 
 
+def test_free_space_pulls_only_the_vertices_the_camera_sees_past():
+    # the object (a square at 1.2 m) in front of a wall 3 m away on the right and a table
+    # 1.25 m away on the left: a vertex left in the air in front of the wall cannot be there
+    # (the camera sees the wall through it) and is pulled back; one just in front of the
+    # table (which explains it within the margin), one on a pixel without depth and one on
+    # the object are left alone
+    outline, mask = outline_square(1.2)
+    depth = np.full(mask.shape, 3.0)
+    depth[:, :320] = 1.25
+    depth[:180, :] = 0.0  # no depth above the square
+    depth[mask] = 1.2
+    V = np.array([[0.15, 0.013, 1.2],   # right of the square, the wall far behind: seen past
+                  [-0.15, 0.0, 1.2],    # left of it, the table 5 cm behind
+                  [0.15, -0.2, 1.2],    # above it, no depth there
+                  [0.0, 0.0, 1.2]])     # on it
+    seen = np.ones(4, bool)
+    term = OutsideTerm(outline, mask, K, seen, depth_m=depth, free_space_m=0.08, name="free_space")
+    pull = np.linalg.norm(term.evaluate(V)[1], axis=1)
+    assert pull[0] > 0 and pull[1] == 0 and pull[2] == 0 and pull[3] == 0
+    check_gradient(term, V)
+    # without the free-space test the term pulls the first two alike
+    both = np.linalg.norm(OutsideTerm(outline, mask, K, seen).evaluate(V)[1], axis=1)
+    assert both[0] > 0 and both[1] > 0
+    with pytest.raises(ValueError, match="free_space_m"):
+        OutsideTerm(outline, mask, K, seen, free_space_m=0.08)
+
+
 def test_match_gated_follows_the_papers_rules():
     from perception.features import Keypoints, match_gated
 

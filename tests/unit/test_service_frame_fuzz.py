@@ -31,8 +31,8 @@ DOC = (Path(__file__).resolve().parents[2] / "docs" / "protocol.md").read_text()
 NAMED_KINDS = set(re.findall(r"^\| `(\w+)` \|", DOC[DOC.index("| kind | cause |"):DOC.index("`messages_malformed`, each")],
                              flags=re.M)) - {"internal"}
 #: What an estimate's energies may hold (docs/protocol.md, MeshEstimate.energies).
-ENERGY_NAMES = {"smoothness", "correspondence", "depth", "boundary", "motion_prior", "stretch", "hold", "outside", "total",
-                "inliers"}
+ENERGY_NAMES = {"smoothness", "correspondence", "depth", "boundary", "motion_prior", "stretch", "hold", "outside",
+                "free_space", "total", "inliers"}
 
 
 def frame_bytes(depth: np.ndarray) -> list[bytes]:
