@@ -337,7 +337,7 @@ class OutsideTerm:
         if self.free_space_m is not None and (self.depth_m is None or not self.free_space_m > 0):
             raise ValueError(f"OutsideTerm: free_space_m needs a positive value and depth_m, got {self.free_space_m!r} "
                              f"and {'no' if self.depth_m is None else 'a'} depth image")
-        self._tree = cKDTree(self.outline_points) if len(self.outline_points) else None
+        self._tree = None  # the outline's k-d tree, built once a vertex is found outside: most frames have none
         self._last = None
 
     def offsets(self, V: np.ndarray) -> np.ndarray:
@@ -348,7 +348,7 @@ class OutsideTerm:
 
     def _offsets(self, V: np.ndarray) -> np.ndarray:
         out = np.zeros_like(V)
-        if self._tree is not None:
+        if len(self.outline_points):
             h, w = self.mask.shape
             cols, rows, inside = pixel_index(project(V, self.K), w, h)
             outside = self.vertex_mask & inside & ~self.mask[rows, cols]
@@ -359,6 +359,8 @@ class OutsideTerm:
                     d = np.asarray(self.depth_m)[rows, cols]
                     outside &= (d > 0) & (d > V[:, 2] + self.free_space_m)
             if outside.any():
+                if self._tree is None:
+                    self._tree = cKDTree(self.outline_points)
                 _, idx = self._tree.query(V[outside])
                 out[outside] = V[outside] - self.outline_points[idx]
         return out

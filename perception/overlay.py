@@ -30,6 +30,15 @@ def draw_mesh(rgb: np.ndarray, estimate: MeshEstimate, K: np.ndarray, thickness:
     return out
 
 
+#: The font of the pictures' labels (``outlined_text``, ``text_width_px``).
+FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+
+def text_width_px(text: str, scale: float = 0.55) -> int:
+    """Width in pixels of ``text`` as ``outlined_text`` draws it at ``scale``."""
+    return int(cv2.getTextSize(text, FONT, scale, 1)[0][0])
+
+
 def outlined_text(rgb: np.ndarray, text: str, origin: tuple[int, int], scale: float = 0.55) -> None:
     """Draw white text with a black outline into ``rgb`` (H, W, 3) uint8, in place.
 
@@ -41,8 +50,8 @@ def outlined_text(rgb: np.ndarray, text: str, origin: tuple[int, int], scale: fl
     for dx in (-1, 0, 1):
         for dy in (-1, 0, 1):
             if dx or dy:
-                cv2.putText(rgb, text, (x + dx, y + dy), cv2.FONT_HERSHEY_SIMPLEX, scale, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.putText(rgb, text, (x, y), cv2.FONT_HERSHEY_SIMPLEX, scale, (255, 255, 255), 1, cv2.LINE_AA)
+                cv2.putText(rgb, text, (x + dx, y + dy), FONT, scale, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.putText(rgb, text, (x, y), FONT, scale, (255, 255, 255), 1, cv2.LINE_AA)
 
 
 def ply_bytes(vertices: np.ndarray, faces: np.ndarray) -> bytes:

@@ -567,12 +567,14 @@ class MeshTracker:
             terms.append((cfg.lambda_d, DepthTerm(obs.range_m, obs.K, cfg.depth_outlier_m, vertex_mask=observed)))
         if cfg.use_boundary and len(obs.outline_cam):
             terms.append((cfg.lambda_b, self._boundary_term(obs, self._g0, observed)))
-        if cfg.lambda_o > 0 and observed is not None and len(obs.outline_cam):
-            measured = None if frame is None else valid_depth(frame.depth_m)
-            terms.append((cfg.lambda_o, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed, measured)))
-        elif cfg.lambda_f > 0 and observed is not None and frame is not None and len(obs.outline_cam):
-            terms.append((cfg.lambda_f, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed, depth_m=frame.depth_m,
-                                                    free_space_m=cfg.depth_outlier_m, name="free_space")))
+        if observed is not None and len(obs.outline_cam):
+            if cfg.lambda_o > 0:
+                measured = None if frame is None else valid_depth(frame.depth_m)
+                terms.append((cfg.lambda_o, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed, measured)))
+            elif cfg.lambda_f > 0 and frame is not None:  # the outside term's pull covers these vertices too
+                terms.append((cfg.lambda_f, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed,
+                                                        depth_m=frame.depth_m, free_space_m=cfg.depth_outlier_m,
+                                                        name="free_space")))
         if observed is not None and prior is not None and cfg.lambda_m > 0 and not observed.all():
             terms.append((cfg.lambda_m, MotionPriorTerm.around(self._edges, ~observed, prior)))
         if cfg.lambda_l > 0 and self._stretch is not None:

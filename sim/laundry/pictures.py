@@ -15,7 +15,7 @@ import numpy as np
 
 from ipc.messages import GraspPlan, MeshEstimate
 from perception.geometry import project
-from perception.overlay import draw_mesh, outlined_text
+from perception.overlay import draw_mesh, outlined_text, text_width_px
 
 GREEN, ORANGE, RED = (40, 200, 60), (255, 150, 0), (230, 20, 20)
 
@@ -37,13 +37,13 @@ def caption(rgb: np.ndarray, text: str, row: int = 0) -> np.ndarray:
     return out
 
 
-def _wrapped(text: str, width_px: int, scale: float = 0.55) -> list[str]:
-    """``text`` in lines no wider than ``width_px`` in ``outlined_text``'s font (a single word
+def _wrapped(text: str, width_px: int) -> list[str]:
+    """``text`` in lines no wider than ``width_px`` as ``outlined_text`` draws them (a single word
     wider than that stays whole on its line)."""
     lines: list[str] = []
     for word in text.split():
         wider = f"{lines[-1]} {word}" if lines else word
-        if lines and cv2.getTextSize(wider, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0] <= width_px:
+        if lines and text_width_px(wider) <= width_px:
             lines[-1] = wider
         else:
             lines.append(word)
