@@ -38,6 +38,22 @@ from perception.geometry import pixel_index, project
 from perception.raster import bounding_box
 
 
+_last_pixels = None  # (V, K, shape, pixel_index's answer) of the last look-up (``_pixels``)
+
+
+def _pixels(V: np.ndarray, K: np.ndarray, shape) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``pixel_index(project(V, K))`` on an image of ``shape`` (H, W), kept for the last V
+    and K: the data terms look the same V up one after another (V is never changed in
+    place). Read and replaced whole, so a tracker on another thread only misses."""
+    global _last_pixels
+    last = _last_pixels
+    if last is not None and last[0] is V and last[1] is K and last[2] == shape:
+        return last[3]
+    found = pixel_index(project(V, K), shape[1], shape[0])
+    _last_pixels = (V, K, shape, found)
+    return found
+
+
 def _kept(term, V: np.ndarray, compute):
     """``compute(V)``, kept in ``term._last`` for the last V: the solver asks for the energy
     and then the Gauss-Newton model at the same V (never changed in place)."""
@@ -115,8 +131,7 @@ class DepthTerm:
         return _kept(self, V, self._lookup)
 
     def _lookup(self, V: np.ndarray):
-        h, w = self.range_m.shape
-        cols, rows, inside = pixel_index(project(V, self.K), w, h)
+        cols, rows, inside = _pixels(V, self.K, self.range_m.shape)
         rho = self.range_m[rows, cols].astype(np.float64)
         norm = np.linalg.norm(V, axis=1)
         r = norm - rho
@@ -206,8 +221,7 @@ class PlaneDepthTerm:
         return _kept(self, V, self._lookup)
 
     def _lookup(self, V: np.ndarray):
-        h, w = self.known.shape
-        cols, rows, inside = pixel_index(project(V, self.K), w, h)
+        cols, rows, inside = _pixels(V, self.K, self.known.shape)
         n = self.normals[rows, cols]
         r = np.einsum("ij,ij->i", V - self.points[rows, cols], n)
         active = inside & self.known[rows, cols] & (np.abs(r) < self.outlier_m)
@@ -271,8 +285,7 @@ class BoundaryTerm:
         vb = V[self.vertex_ids]
         dist, idx = self._tree.query(vb)
         offset = vb - self._points[idx]
-        h, w = self.mask.shape
-        cols, rows, inside = pixel_index(project(vb, self.K), w, h)
+        cols, rows, inside = (a[self.vertex_ids] for a in _pixels(V, self.K, self.mask.shape))
         sign = np.where(inside & self.mask[rows, cols], 1.0, -1.0)
         active = (dist < self.gate_m) & (dist > 1e-12) & self._own[idx]
         return sign * dist, offset, sign, active
@@ -349,8 +362,7 @@ class OutsideTerm:
     def _offsets(self, V: np.ndarray) -> np.ndarray:
         out = np.zeros_like(V)
         if len(self.outline_points):
-            h, w = self.mask.shape
-            cols, rows, inside = pixel_index(project(V, self.K), w, h)
+            cols, rows, inside = _pixels(V, self.K, self.mask.shape)
             outside = self.vertex_mask & inside & ~self.mask[rows, cols]
             if self.measured is not None:
                 outside &= self.measured[rows, cols]
@@ -397,6 +409,7 @@ class StretchTerm:
     n_vertices: int = 0
     _incidence: sp.csr_matrix = field(init=False, repr=False)
     _incidence_t: sp.csr_matrix = field(init=False, repr=False)
+    _last: tuple | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self):
         E = len(self.edges)
@@ -406,6 +419,11 @@ class StretchTerm:
         self._incidence_t = self._incidence.T.tocsr()  # row-major both ways: a transposed view is slower
 
     def _parts(self, V: np.ndarray):
+        """(E, 3) unit edge directions and (E,) residuals; the last answer is kept, as in
+        ``DepthTerm.lookup``."""
+        return _kept(self, V, self._compute_parts)
+
+    def _compute_parts(self, V: np.ndarray):
         d = self._incidence @ V
         n = np.linalg.norm(d, axis=1)
         u = d / np.maximum(n, 1e-12)[:, None]

@@ -84,12 +84,14 @@ def pixel_index(uv: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np
     returns (cols (N,) int64, rows (N,) int64, inside (N,) bool); cols and rows are clipped
     into the image so they can index it directly, check ``inside`` before trusting them.
     """
-    finite = np.all(np.isfinite(uv), axis=1)
-    uvr = np.where(finite[:, None], np.rint(uv), -1.0)
-    cols = uvr[:, 0].astype(np.int64)
-    rows = uvr[:, 1].astype(np.int64)
-    inside = finite & (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)
-    return np.clip(cols, 0, width - 1), np.clip(rows, 0, height - 1), inside
+    # Column by column: (N, 2) temporaries cost more than the arithmetic on them. A NaN
+    # compares False, so a point without coordinates is never inside.
+    u, v = np.rint(uv[:, 0]), np.rint(uv[:, 1])
+    inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    finite = np.isfinite(u) & np.isfinite(v)
+    cols = np.clip(np.where(finite, u, -1.0), 0, width - 1).astype(np.int64)
+    rows = np.clip(np.where(finite, v, -1.0), 0, height - 1).astype(np.int64)
+    return cols, rows, inside
 
 
 def crop_intrinsics(K: np.ndarray, x0: float, y0: float) -> np.ndarray:

@@ -48,6 +48,22 @@ def check_gradient(term, V):
     assert np.abs(grad).max() > 0  # the check is not vacuous
 
 
+def test_data_terms_share_a_pixel_look_up_only_for_the_same_vertices_and_camera():
+    # The depth, boundary and outside terms look a V up once between them; a term with
+    # another camera, or the same V's copy, must get its own answer, not the last one.
+    rng = np.random.default_rng(5)
+    _, V = mesh_vertices(rng)
+    range_m = np.tile(np.linspace(1.0, 1.4, 640, dtype=np.float32), (480, 1))  # each column its own range
+    moved = K.copy()
+    moved[0, 2] += 40.0  # the same image seen 40 px to the side
+    here = DepthTerm(range_m, K, outlier_m=1.0)
+    there = DepthTerm(range_m, moved, outlier_m=1.0)
+    e_here, e_there = here.evaluate(V)[0], there.evaluate(V)[0]
+    assert e_here != pytest.approx(e_there, rel=1e-3)
+    assert DepthTerm(range_m, K, outlier_m=1.0).evaluate(V.copy())[0] == pytest.approx(e_here, rel=1e-12)
+    assert DepthTerm(range_m, moved, outlier_m=1.0).evaluate(V.copy())[0] == pytest.approx(e_there, rel=1e-12)
+
+
 def test_smoothness_gradient_and_value():
     rng = np.random.default_rng(1)
     m, V = mesh_vertices(rng)
