@@ -37,7 +37,6 @@ from scipy.spatial import cKDTree
 from perception.geometry import pixel_index, project
 from perception.raster import bounding_box
 
-
 _last_pixels = None  # (V, K, shape, pixel_index's answer) of the last look-up (``_pixels``)
 
 
