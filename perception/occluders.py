@@ -56,7 +56,7 @@ import numpy as np
 
 from perception.colour_model import ColourModel
 from perception.geometry import directed_edges, pixel_index, project
-from perception.raster import disc, locate_pixels
+from perception.raster import blow_up, disc, locate_pixels
 from perception.segmentation import SHADOW_PX, valid_depth
 from perception.support import SupportPlane
 
@@ -208,7 +208,7 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
     # Grown by a pixel or two: the object's own edge pixels, mixed with the cloth behind.
     found = cv2.dilate(front.view(np.uint8), np.ones((3, 3), np.uint8))
     out = np.zeros((h, w), bool)
-    out[y0:y1, x0:x1] = np.repeat(np.repeat(found, STEP_PX, axis=0), STEP_PX, axis=1)[:y1 - y0, :x1 - x0].view(bool)
+    out[y0:y1, x0:x1] = blow_up(found, STEP_PX, (y1 - y0, x1 - x0))
     return out
 
 

@@ -28,6 +28,16 @@ def bounding_box(mask: np.ndarray, pad: int = 0):
     return (max(0, rows[0] - pad), min(h, rows[-1] + 1 + pad), max(0, cols[0] - pad), min(w, cols[-1] + 1 + pad))
 
 
+def blow_up(mask: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) bool: each pixel of ``mask`` (h, w) bool repeated ``factor`` times down and
+    across, cut to ``shape`` (H, W) (at most h * factor by w * factor). As ``np.repeat``
+    twice, but by OpenCV, which lets go of the interpreter's lock: the tracker runs this
+    beside its main thread, which then need not wait."""
+    h, w = mask.shape
+    big = cv2.resize(mask.view(np.uint8), (w * factor, h * factor), interpolation=cv2.INTER_NEAREST_EXACT)
+    return big[: shape[0], : shape[1]].view(bool)
+
+
 def _pixel_triangles(uv: np.ndarray, faces: np.ndarray, shape) -> tuple[np.ndarray, np.ndarray]:
     """Integer triangles (K, 3, 2) of the faces whose corners are all finite, and their ids (K,)."""
     h, w = shape

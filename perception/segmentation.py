@@ -23,7 +23,7 @@ import numpy as np
 
 from perception.colour_model import ColourModel
 from perception.geometry import backproject
-from perception.raster import bounding_box, disc
+from perception.raster import blow_up, bounding_box, disc
 
 log = logging.getLogger(__name__)
 
@@ -305,7 +305,7 @@ def _colour_extent(region: np.ndarray, depth_m: np.ndarray, p: np.ndarray, cfg: 
     joined = np.bincount(labels[region], minlength=n) > 0
     joined[0] = False
     half = joined[labels] & like
-    return np.repeat(np.repeat(half, 2, axis=0), 2, axis=1)[:h, :w]
+    return blow_up(half, 2, (h, w))
 
 
 def _uncovered(pred: np.ndarray, p: np.ndarray) -> np.ndarray:
