@@ -129,6 +129,8 @@ def from_the_side(plan: GraspPlan, T_world_cam, side: float = 1.0, up_world=(0.0
     rise_m, reach_m : float >= 0, metres
     returns GraspPlan, camera frame, otherwise as ``plan``
     """
+    if not isinstance(plan, GraspPlan):
+        raise ValueError(f"plan: expected a GraspPlan, got {type(plan).__name__}")
     if side not in (1, -1):
         raise ValueError(f"side: expected +1 or -1, got {side!r}")
     T = check_transform("T_world_cam", T_world_cam)

@@ -32,6 +32,15 @@ def depth_agrees(points_cam: np.ndarray, depth_m: np.ndarray, uv: np.ndarray, to
     -------
     (K,) bool; False outside the image
     """
+    points_cam, depth_m, uv = np.asarray(points_cam, np.float64), np.asarray(depth_m), np.asarray(uv, np.float64)
+    if depth_m.ndim != 2:
+        raise ValueError(f"depth_m: expected (H, W) metres, got shape {depth_m.shape}")
+    if points_cam.ndim != 2 or points_cam.shape[1] != 3 or uv.shape != (len(points_cam), 2):
+        raise ValueError(f"points_cam and uv: expected (K, 3) and (K, 2), got {points_cam.shape} and {uv.shape}")
+    if isinstance(window_px, bool) or not isinstance(window_px, (int, np.integer)) or window_px < 0:
+        raise ValueError(f"window_px: expected an integer >= 0, got {window_px!r}")
+    if not (np.isfinite(tol_m) and tol_m >= 0):
+        raise ValueError(f"tol_m: expected a non-negative number of metres, got {tol_m!r}")
     height, width = depth_m.shape
     agrees = np.zeros(len(points_cam), bool)
     cols, rows, inside = pixel_index(uv, width, height)

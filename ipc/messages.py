@@ -52,6 +52,10 @@ def _check_array(name: str, value, shape: tuple, dtype=None, finite: bool = Fals
         if np.dtype(dtype).kind == "f" and arr.dtype.kind in "fiu":
             arr = arr.astype(dtype)
         elif np.dtype(dtype).kind in "iu" and arr.dtype.kind in "iu":
+            limits = np.iinfo(dtype)
+            if arr.size and (arr.min() < limits.min or arr.max() > limits.max):
+                raise ValueError(f"{name}: values from {arr.min()} to {arr.max()} do not fit {np.dtype(dtype)} "
+                                 f"([{limits.min}, {limits.max}])")
             arr = arr.astype(dtype)
         else:
             raise ValueError(f"{name}: expected dtype {np.dtype(dtype)}, got {arr.dtype}")
@@ -119,7 +123,8 @@ class RGBDFrame:
     """One registered colour and depth image.
 
     rgb : (H, W, 3) uint8, RGB channel order
-    depth_m : (H, W) float32, metres along the optical axis; 0 or NaN = no measurement
+    depth_m : (H, W) float32, metres along the optical axis; 0 or NaN = no measurement (other
+        float types are converted; integer depth is refused: its scale is not known here)
     camera : CameraInfo of both images (depth is registered to colour)
     timestamp_s : float, seconds
     seq : int, frame counter of the source
@@ -150,6 +155,9 @@ class RGBDFrame:
         if not isinstance(cam, CameraInfo):
             raise ValueError(f"RGBDFrame.camera: expected CameraInfo, got {type(cam).__name__}")
         rgb = _check_array("RGBDFrame.rgb", self.rgb, (cam.height, cam.width, 3), np.uint8)
+        if np.asarray(self.depth_m).dtype.kind in "iu":
+            raise ValueError(f"RGBDFrame.depth_m: expected float metres, got {np.asarray(self.depth_m).dtype} "
+                             f"(integer depth comes with its scale: divide by it, e.g. 1000 for millimetres)")
         depth = _check_array("RGBDFrame.depth_m", self.depth_m, (cam.height, cam.width), np.float32)
         # fmin/fmax skip NaN (missing) and are one fast pass each; this runs on every
         # frame a service receives. A -inf shows as negative, as it did with depth < 0.
@@ -167,12 +175,18 @@ class RGBDFrame:
         if self.held_vertices is not None:
             ids = np.asarray(self.held_vertices)
             points = np.asarray(self.held_points_m)
-            if ids.ndim != 1 or ids.dtype.kind not in "iu" or (ids.size and ids.min() < 0):
-                raise ValueError(f"RGBDFrame.held_vertices: expected (K,) integer vertex ids >= 0, got shape "
+            if ids.ndim != 1 or ids.dtype.kind not in "iu":
+                raise ValueError(f"RGBDFrame.held_vertices: expected (K,) integer vertex ids, got shape "
                                  f"{ids.shape} dtype {ids.dtype}")
-            if points.shape != (ids.size, 3) or not np.all(np.isfinite(points)):
-                raise ValueError(f"RGBDFrame.held_points_m: expected ({ids.size}, 3) finite metres like "
-                                 f"held_vertices, got shape {points.shape}")
+            if ids.size and (ids.min() < 0 or ids.max() > np.iinfo(np.int32).max):
+                raise ValueError(f"RGBDFrame.held_vertices: vertex ids from {ids.min()} to {ids.max()}, expected "
+                                 f"0 to {np.iinfo(np.int32).max}")
+            if points.shape != (ids.size, 3):
+                raise ValueError(f"RGBDFrame.held_points_m: expected ({ids.size}, 3) metres like held_vertices, "
+                                 f"got shape {points.shape}")
+            if points.dtype.kind not in "fiu" or not np.all(np.isfinite(points)):
+                raise ValueError("RGBDFrame.held_points_m: expected finite metres, got NaN, infinite or "
+                                 "non-numeric values")
             object.__setattr__(self, "held_vertices", ids.astype(np.int32))
             object.__setattr__(self, "held_points_m", points.astype(np.float64))
         object.__setattr__(self, "rgb", rgb)

@@ -66,6 +66,7 @@ from perception.features import (
     make_correspondences,
     resolve_kind,
 )
+from perception.frame_checks import check_frame
 from perception.geometry import Undistorter, face_areas, face_normals, pixel_index, project, rays
 from perception.initial_mesh import InitialisationError, mesh_from_mask, object_area_m2, place_mesh, spacing_for
 from perception.mesh import CanonicalMesh, barycentric_matrix
@@ -100,6 +101,11 @@ FOLD_MARGIN_MIN_M = 0.005
 #: segmented again (a new mesh loses the material coordinates; a frame or two of bad data pass)
 KEEP_MESH_LOST_FRAMES = 3
 
+#: An initialisation mask may cover at most this share of the frame: the object's outline and
+#: some of its surroundings must be in view (a mask of the whole frame, given by mistake, lays
+#: one sheet over everything seen and reports it confidently)
+MAX_MASK_SHARE = 0.95
+
 
 @lru_cache(maxsize=1)
 def _blas() -> ThreadpoolController:
@@ -127,6 +133,11 @@ class _Done:
 
     def exception(self):
         return None
+
+
+def _lens(D: np.ndarray) -> np.ndarray:
+    """(8,) distortion coefficients ``D`` padded with zeros: no coefficients and zero ones are one lens."""
+    return np.pad(np.asarray(D, np.float64).ravel()[:8], (0, max(0, 8 - np.asarray(D).size)))
 
 
 def _camera_text(camera) -> str:
@@ -401,6 +412,11 @@ class MeshTracker:
             if (c.width, c.height) != (self._camera.width, self._camera.height) or not np.allclose(c.K, self._camera.K):
                 raise TrackingError(f"frame camera changed: initialised on {_camera_text(self._camera)}, got "
                                     f"{_camera_text(c)} (re-initialise for a new camera)")
+            first = self._undistort.camera  # as the first frame gave it, lens distortion included
+            if c.frame_id != first.frame_id or not np.allclose(_lens(c.D), _lens(first.D)):
+                raise TrackingError(f"frame camera changed: initialised in frame {first.frame_id!r} with distortion "
+                                    f"{_lens(first.D).tolist()}, got {c.frame_id!r} with {_lens(c.D).tolist()} "
+                                    f"(re-initialise for a new camera)")
         held = frame.held_vertices
         if held is not None and held.size and self.mesh is not None and int(held.max()) >= self.mesh.n_vertices:
             raise TrackingError(f"RGBDFrame.held_vertices: vertex {int(held.max())} is not in the tracked mesh "
@@ -437,6 +453,9 @@ class MeshTracker:
         t0 = time.perf_counter()
         self.reset()
         frame = self._check_frame(frame)
+        problem = check_frame(frame)  # a camera or depth no sensor gives: its numbers would overflow the mesh's
+        if problem is not None:
+            raise TrackingError(problem[1])
         if background is not None:
             try:
                 check_background(background, frame)
@@ -459,6 +478,9 @@ class MeshTracker:
             mask = mask.astype(bool)
             if not mask.any():
                 raise TrackingError("mask is empty: it must be non-zero on the object")
+            if mask.mean() > MAX_MASK_SHARE:
+                raise TrackingError(f"mask covers {100 * mask.mean():.1f} % of the frame: it must be the object's, "
+                                    f"with some of its surroundings in view")
         obs = observe(frame, mask, cfg.depth_window_px)
         try:
             if mesh is None:

@@ -746,3 +746,20 @@ def test_a_corner_far_above_the_surface_beyond_is_not_judged():
     result = plan_grasps(cloth, GraspPlannerConfig(kind="corner", T_world_cam=T), frame)
     assert len(result.terms) == 4
     assert all(t.single_layer == 1.0 and t.step_m == pytest.approx(0.10, abs=0.005) for t in result.terms)
+
+
+@pytest.mark.parametrize("change, match", [
+    (dict(window_px=2.5), "window_px: expected an integer >= 0, got 2.5"),
+    (dict(window_px=-1), "window_px: expected an integer >= 0, got -1"),
+    (dict(tol_m=float("nan")), "tol_m: expected a non-negative number"),
+    (dict(depth_m=np.ones((4, 5, 1), np.float32)), r"depth_m: expected \(H, W\) metres, got shape \(4, 5, 1\)"),
+    (dict(uv=np.zeros((1, 2))), r"points_cam and uv: expected \(K, 3\) and \(K, 2\), got \(2, 3\) and \(1, 2\)"),
+])
+def test_depth_agrees_names_a_bad_argument(change, match):
+    from grasping import depth_agrees
+
+    args = dict(points_cam=np.array([[0.0, 0.0, 1.0], [0.0, 0.0, 2.0]]), depth_m=np.ones((4, 5), np.float32),
+                uv=np.array([[2.0, 2.0], [2.0, 2.0]]), tol_m=0.01, window_px=1)
+    assert depth_agrees(**args).tolist() == [True, False]  # the point at the measured 1 m, not the one behind
+    with pytest.raises(ValueError, match=match):
+        depth_agrees(**{**args, **change})

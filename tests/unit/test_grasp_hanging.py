@@ -119,3 +119,5 @@ def test_from_the_side_refuses_a_side_that_is_not_one():
     below = lowest_point_grasp(to_cam(T, hanging_triangle()), T)
     with pytest.raises(ValueError, match="side"):
         from_the_side(below, T, side=0)
+    with pytest.raises(ValueError, match="plan: expected a GraspPlan, got str"):
+        from_the_side("plan", T)

@@ -7,6 +7,7 @@ import pytest
 
 from ipc import messages as m
 from ipc.examples import example_messages
+from ipc.messages import CameraInfo, RGBDFrame
 
 
 def test_examples_cover_every_message_class():
@@ -242,3 +243,13 @@ def test_plain_requests(cls):
     assert cls(request_id=5).request_id == 5
     with pytest.raises(ValueError, match=rf"{cls.__name__}\.request_id"):
         cls(request_id=-2)
+
+
+def test_rgbd_frame_refuses_integers_it_would_have_to_guess_or_wrap():
+    cam = CameraInfo.from_fov(8, 6, np.deg2rad(60))
+    rgb, depth = np.zeros((6, 8, 3), np.uint8), np.ones((6, 8), np.float32)
+    with pytest.raises(ValueError, match=r"depth_m: expected float metres, got uint16 \(integer depth comes with its scale"):
+        RGBDFrame(rgb, (depth * 1000).astype(np.uint16), cam)  # millimetres: never guess a scale
+    with pytest.raises(ValueError, match=r"rgb: values from 4095 to 4095 do not fit uint8"):
+        RGBDFrame(np.full((6, 8, 3), 4095, np.uint16), depth, cam)  # 12-bit colour would wrap modulo 256
+    assert RGBDFrame(rgb.astype(np.int64), depth, cam).rgb.dtype == np.uint8  # values that fit are kept

@@ -257,11 +257,16 @@ def test_bad_input_messages(tex):
     with pytest.raises(TrackingError, match=r"mask: expected shape \(480, 640\)"):
         tr.initialise(f0, mask=np.ones((10, 10), bool))
     no_depth = RGBDFrame(f0.rgb, np.zeros_like(f0.depth_m), CAM)
-    with pytest.raises(TrackingError, match="no object found"):
+    with pytest.raises(TrackingError, match="no valid depth pixel"):
         tr.initialise(no_depth)
     nan_depth = RGBDFrame(f0.rgb, np.full_like(f0.depth_m, np.nan), CAM)
-    with pytest.raises(TrackingError, match="pixels with depth"):
+    with pytest.raises(TrackingError, match="no valid depth pixel"):
         tr.initialise(nan_depth, mask=np.ones((480, 640), bool))
+    with pytest.raises(TrackingError, match=r"mask covers 100.0 % of the frame"):
+        tr.initialise(f0, mask=np.ones((480, 640), bool))
+    far = RGBDFrame(f0.rgb, f0.depth_m * 1000.0, CAM)  # millimetres taken for metres
+    with pytest.raises(TrackingError, match=r"outside the \[0.001, 100\] m of any RGB-D sensor"):
+        tr.initialise(far)
     before = tr.initialise(f0).vertices
     with pytest.raises(TrackingError, match="mask is empty"):
         tr.initialise(f0, mask=np.zeros((480, 640), bool))
@@ -275,6 +280,11 @@ def test_bad_input_messages(tex):
     with pytest.raises(TrackingError, match=rf"initialised on 640x480 fx {CAM.K[0, 0]:g} .* got 640x480 fx "
                                             rf"{1.1 * CAM.K[0, 0]:g}"):
         tr.track(dataclasses.replace(f0, camera=refocused))
+    # the same intrinsics through another lens, or in another frame: not the camera initialised on
+    with pytest.raises(TrackingError, match=r"initialised in frame .* with distortion \[0.0, .* got .* with \[-0.2"):
+        tr.track(dataclasses.replace(f0, camera=dataclasses.replace(CAM, D=np.array([-0.2, 0.05, 0, 0, 0]))))
+    with pytest.raises(TrackingError, match=rf"initialised in frame '{CAM.frame_id}'.* got 'wrist_optical'"):
+        tr.track(dataclasses.replace(f0, camera=dataclasses.replace(CAM, frame_id="wrist_optical")))
     with pytest.raises(TrackingError, match="expected an RGBDFrame"):
         tr.track("not a frame")
     with pytest.raises(ValueError, match="alpha"):

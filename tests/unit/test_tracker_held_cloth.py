@@ -186,8 +186,12 @@ def test_frames_name_a_half_given_hold():
         dataclasses.replace(frame, held_vertices=np.array([1]))
     with pytest.raises(ValueError, match="held_points_m: expected \\(1, 3\\)"):
         dataclasses.replace(frame, held_vertices=np.array([1]), held_points_m=np.zeros((2, 3)))
-    with pytest.raises(ValueError, match="held_vertices: expected"):
+    with pytest.raises(ValueError, match="held_vertices: vertex ids from -1 to -1, expected 0 to"):
         dataclasses.replace(frame, held_vertices=np.array([-1]), held_points_m=np.zeros((1, 3)))
+    with pytest.raises(ValueError, match="held_vertices: vertex ids from 4294967301"):  # would wrap to vertex 5
+        dataclasses.replace(frame, held_vertices=np.array([2**32 + 5]), held_points_m=np.zeros((1, 3)))
+    with pytest.raises(ValueError, match="held_points_m: expected finite metres"):
+        dataclasses.replace(frame, held_vertices=np.array([1]), held_points_m=np.full((1, 3), np.nan))
 
 
 def _reach_ratio(vertices, canonical, faces, held, point):
