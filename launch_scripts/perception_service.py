@@ -61,7 +61,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.no_auto_init and args.reinit_after_lost:
+        parser.error("--reinit-after-lost re-initialises by itself, which --no-auto-init rules out: give one of them")
     configure_logging(args.log_level)
     stop = threading.Event()
     stop_on_signals(stop)

@@ -101,6 +101,10 @@ def object_area_m2(obs: Observation) -> float:
 #: Lattice points of the hexagonal grid per square of the spacing (two equilateral triangles).
 _POINTS_PER_SPACING_SQUARED = 2.0 / np.sqrt(3.0)
 
+#: A mesh spacing chosen from ``target_vertices`` is never shorter than this many pixels at the
+#: object's median depth: finer than that, the image has nothing to say about each triangle
+MIN_SPACING_PX = 4.0
+
 
 def mesh_vertices(area_m2: float, spacing_m: float) -> int:
     """About how many vertices a hexagonal mesh of ``spacing_m`` has over ``area_m2``."""
@@ -113,7 +117,7 @@ def spacing_for_area(area_m2: float, vertices: int) -> float:
     return float(np.sqrt(area_m2 * _POINTS_PER_SPACING_SQUARED / vertices))
 
 
-def spacing_for(obs: Observation, target_vertices: int, min_px: float = 4.0) -> float:
+def spacing_for(obs: Observation, target_vertices: int, min_px: float = MIN_SPACING_PX) -> float:
     """The mesh spacing, metres, that gives the object of ``obs`` about ``target_vertices`` vertices.
 
     A vertex of the hexagonal grid stands for s^2 sqrt(3) / 2 of the object's area

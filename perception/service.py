@@ -111,6 +111,7 @@ class PerceptionService:
         # line each, in order); the loop hands them to the core between frames.
         self._source_events: queue.SimpleQueue = queue.SimpleQueue()
         self._seq_went_back_at = -math.inf  # time.monotonic() of the last frame whose seq went back
+        self._last_received_seq = -1  # seq of the last frame received, processed or not
         self._malformed_told = 0  # malformed frame messages before the last InitialiseRequest or ResetRequest
         # (request_id, seq, hash of the mask) of the last InitialiseRequest carried out on a frame held
         self._initialised_on: tuple | None = None
@@ -156,9 +157,14 @@ class PerceptionService:
         if frame is None:
             return None
         arrived_at = self._frames.taken_arrived_at
-        if frame.seq < self.core.last_seq and self.core.state in ("tracking", "lost"):
+        # Tracking, the stream goes on from the last frame tracked; waiting for the frame an
+        # InitialiseRequest names, from the last frame received (none of them was tracked).
+        last = self.core.last_seq if self.core.state in ("tracking", "lost") else \
+            self._last_received_seq if self.core.initialise_seq >= 0 else -1
+        self._last_received_seq = frame.seq
+        if frame.seq < last:
             self._seq_went_back_at = time.monotonic()
-            self._discontinuity(f"frame seq went back from {self.core.last_seq} to {frame.seq}")
+            self._discontinuity(f"frame seq went back from {last} to {frame.seq}")
         if 0 <= self.core.initialise_seq < frame.seq:
             # The frame to initialise on was skipped for this newer one: build the mesh on
             # it first (if it is still held), then track this frame from there.

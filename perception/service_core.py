@@ -29,7 +29,7 @@ import numpy as np
 
 from ipc.messages import MeshEstimate, RGBDFrame
 from perception.frame_checks import check_frame, object_lattice_bound, seen_area_m2, spacing_px
-from perception.initial_mesh import mesh_vertices, spacing_for_area
+from perception.initial_mesh import MIN_SPACING_PX, mesh_vertices, spacing_for_area
 from perception.parameters import LATTICE_BUDGET, MAX_MESH_VERTICES, apply_parameters, check_work, tracker_parameters
 from perception.segmentation import find_object
 from perception.tracker import MeshTracker, TrackerConfig, TrackingError
@@ -130,7 +130,9 @@ class PerceptionCore:
             self._occluders_by_seq.pop(seq, None)
         else:
             if seq not in self._occluders_by_seq and len(self._occluders_by_seq) >= MAX_PENDING_OCCLUDERS:
-                del self._occluders_by_seq[min(self._occluders_by_seq)]  # the oldest frame's mask
+                raise ValueError(f"OccluderMaskRequest.seq {seq}: {MAX_PENDING_OCCLUDERS} frames' masks are waiting "
+                                 f"already (frames {min(self._occluders_by_seq)} to {max(self._occluders_by_seq)}); "
+                                 f"send it when fewer are")
             self._occluders_by_seq[seq] = occluder
 
     def _with_occluders(self, frame: RGBDFrame) -> RGBDFrame:
@@ -178,9 +180,9 @@ class PerceptionCore:
         when it chooses the spacing (``spacing_m`` 0); else on the current object if there is
         a mesh, or on everything seen in the last frame received (no object can be larger);
         None before any frame."""
-        if config.spacing_m == 0:
-            return config.target_vertices
         mesh = self.tracker.mesh
+        if config.spacing_m == 0:  # the mesh tracked now, or the one a new object gets
+            return max(config.target_vertices, 0 if mesh is None else mesh.n_vertices)
         if mesh is not None:
             return math.ceil(mesh.n_vertices * (mesh.spacing_m / config.spacing_m) ** 2)
         frame = self._last_frame
@@ -221,6 +223,18 @@ class PerceptionCore:
         frame was not tracked (idle, waiting for the frame to initialise on, or rejected:
         see ``counters.rejected``). ``again``: a frame received before (skipped or taken),
         handed in again to be initialised on; not counted as taken a second time."""
+        estimate = self._handle_frame(frame, again)
+        standing = self._standing_occluder
+        if standing is not None and standing.shape != frame.depth_m.shape:
+            # Sent before any frame, when its size could not be checked, and ignored for this
+            # one: dropped, and said after the frame (an initialisation clears the last error).
+            self.last_error = (f"standing occluder mask of shape {standing.shape} dropped: the frames are "
+                               f"{frame.depth_m.shape}")
+            log.warning("%s", self.last_error)
+            self._standing_occluder = None
+        return estimate
+
+    def _handle_frame(self, frame: RGBDFrame, again: bool) -> MeshEstimate | None:
         if not again:
             self.counters.frames_taken += 1
             self._frame_shape = frame.depth_m.shape
@@ -293,17 +307,23 @@ class PerceptionCore:
             raise TrackingError(f"mask: expected shape {frame.depth_m.shape} like the frame, got {mask.shape}")
         mask = mask.astype(bool)
         area_m2 = seen_area_m2(frame, mask)
-        # A chosen spacing gives about target_vertices over the object's area, tilted surfaces
-        # counting more: at least the spacing for its area as seen facing the camera.
-        spacing = config.spacing_m or spacing_for_area(area_m2, config.target_vertices)
-        if spacing == 0:
-            return  # no pixel of the object has depth: the tracker says so
+        if config.spacing_m:
+            spacing = config.spacing_m
+        else:
+            # As the tracker chooses it (``perception.initial_mesh.spacing_for``): about
+            # target_vertices over the object's area, tilted surfaces counting more, so at least
+            # the spacing for its area as seen facing the camera; never under MIN_SPACING_PX.
+            z = frame.depth_m[mask & (frame.depth_m > 0)]
+            if z.size == 0:
+                return  # no pixel of the object has depth: the tracker says so
+            spacing = max(spacing_for_area(area_m2, config.target_vertices),
+                          MIN_SPACING_PX * float(np.median(z)) / frame.camera.fx)
         edge_px = spacing_px(frame, mask, spacing)
         if edge_px > max(frame.camera.width, frame.camera.height):
             raise TrackingError(f"the object is smaller than one triangle: spacing_m {spacing:g} spans "
                                 f"{edge_px:.0f} px at its depth, more than the {frame.camera.width}x{frame.camera.height} image")
         vertices = mesh_vertices(area_m2, spacing)
-        if vertices > MAX_MESH_VERTICES:
+        if config.spacing_m and vertices > MAX_MESH_VERTICES:  # a chosen spacing stays near target_vertices
             raise TrackingError(f"the object is too large for a mesh at spacing_m {spacing:g}: about {vertices} "
                                 f"vertices, over the budget of {MAX_MESH_VERTICES}")
         bound = object_lattice_bound(frame, mask, spacing)

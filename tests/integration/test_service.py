@@ -560,3 +560,50 @@ def test_a_frame_named_to_initialise_on_that_never_comes_leaves_the_service_idle
     auto.request_initialise(frames[2].depth_m < 2.0, seq=2)
     assert auto.handle_frame(no_depth) is None and auto.state == "idle"
     assert auto.last_error.endswith("the mask cannot be used: send a new InitialiseRequest")
+
+
+def test_a_frame_counter_going_back_while_an_initialise_request_waits_is_a_discontinuity(frames):
+    with Publisher(ANY, source="test frames", heartbeat_period_s=0.2) as pub, \
+            Running(frames_endpoint=pub.endpoint, auto_init=False) as run:
+        def send(seq):
+            pub.publish(dataclasses.replace(frames[seq % N], seq=seq))
+
+        assert wait_until(lambda: send(5) or run.status().frames_received >= 1, 10.0)
+        send(6)
+        assert wait_until(lambda: run.status().last_seq == -1 and run.status().frames_received >= 2, 10.0)
+        ahead = run.control.request(InitialiseRequest(mask=frames[20 % N].depth_m < 2.0, seq=20))
+        assert ahead.state == "initialising"
+        send(1)  # the source restarted its counter only: frame 20 of the old stream will never come
+        assert wait_until(lambda: run.status().discontinuities == 1, 10.0)
+        after = run.status()
+        assert after.state == "idle" and "frame seq went back from 6 to 1" in after.message, after
+        send(20)  # the restarted stream's frame 20 is another frame: the old request is not carried out on it
+        assert wait_until(lambda: run.status().frames_received >= 4, 10.0)
+        assert run.status().state == "idle" and run.status().frames_tracked == 0
+
+
+def test_occluder_masks_waiting_are_capped_by_refusing_the_next_and_a_misfit_standing_mask_is_dropped(frames):
+    from perception.service_core import MAX_PENDING_OCCLUDERS
+
+    core = PerceptionCore(TrackerConfig.realtime())
+    h, w = frames[0].depth_m.shape
+    core.set_occluder_mask(np.ones((10, 10), np.uint8))  # before any frame: its size cannot be checked yet
+    for seq in range(100, 100 + MAX_PENDING_OCCLUDERS):
+        core.set_occluder_mask(np.ones((h, w), np.uint8), seq=seq)
+    with pytest.raises(ValueError, match=rf"OccluderMaskRequest.seq 500: {MAX_PENDING_OCCLUDERS} frames' masks are "
+                                         rf"waiting already \(frames 100 to {99 + MAX_PENDING_OCCLUDERS}\)"):
+        core.set_occluder_mask(np.ones((h, w), np.uint8), seq=500)
+    assert sorted(core._occluders_by_seq) == list(range(100, 100 + MAX_PENDING_OCCLUDERS))  # none dropped
+    assert core.handle_frame(frames[0]) is not None  # initialises; the misfit standing mask goes
+    assert core._standing_occluder is None and "standing occluder mask of shape (10, 10) dropped" in core.last_error
+
+
+def test_the_vertex_budgets_count_the_mesh_the_tracker_builds(frames):
+    core = PerceptionCore(TrackerConfig.realtime())
+    assert core.expected_vertices(core.tracker.config) == 400  # before any mesh: target_vertices
+    core.set_parameters({"target_vertices": MAX_MESH_VERTICES})  # the top of its documented range
+    assert core.handle_frame(frames[0]) is not None and core.state == "tracking"  # not refused as 5001
+    n = core.tracker.mesh.n_vertices
+    core.set_parameters({"target_vertices": 100})
+    # the solver-work budget counts the mesh tracked now, larger than the new target until re-initialised
+    assert core.expected_vertices(core.tracker.config) == n > 100

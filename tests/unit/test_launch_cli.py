@@ -162,3 +162,12 @@ def test_the_services_refuse_a_port_out_of_range_in_one_line(module, option, cap
     assert e.value.code == 2
     assert capsys.readouterr().err.strip().endswith(
         f"error: argument {option}: expected a port in 0-65535 or *, got '99999' in 'tcp://127.0.0.1:99999'")
+
+
+def test_the_perception_service_refuses_to_reinitialise_after_lost_frames_without_automatic_initialisation(capsys):
+    from launch_scripts import perception_service
+
+    with pytest.raises(SystemExit) as stop:
+        perception_service.main(["--no-auto-init", "--reinit-after-lost", "3"])
+    assert stop.value.code == 2
+    assert "--reinit-after-lost re-initialises by itself, which --no-auto-init rules out" in capsys.readouterr().err
