@@ -176,10 +176,11 @@ class PerceptionCore:
         return tracker_parameters(self.tracker.config)
 
     def expected_vertices(self, config: TrackerConfig) -> int | None:
-        """About how many vertices a mesh built with ``config`` would have: ``target_vertices``
-        when it chooses the spacing (``spacing_m`` 0); else on the current object if there is
-        a mesh, or on everything seen in the last frame received (no object can be larger);
-        None before any frame."""
+        """About how many vertices a mesh built with ``config`` would have, or the mesh tracked
+        now if it has more: when ``config`` chooses the spacing (``spacing_m`` 0), the larger
+        of ``target_vertices`` and the current mesh's count; else on the current object if
+        there is a mesh, or on everything seen in the last frame received (no object can be
+        larger); None before any frame."""
         mesh = self.tracker.mesh
         if config.spacing_m == 0:  # the mesh tracked now, or the one a new object gets
             return max(config.target_vertices, 0 if mesh is None else mesh.n_vertices)
