@@ -199,8 +199,8 @@ class TrackerConfig:
         it (``perception.occluders``; where colour tells the cloth from its surroundings, a
         smaller step and a hue not the cloth's will do); 0 switches both off
     lambda_m : weight of the motion prior that carries hidden and unobserved vertices
-    lambda_l : weight of the stretch term that keeps the mesh's edge lengths (0: the paper's
-        energy, whose smoothness lets a mesh shrink onto the part of the object still seen)
+    lambda_l : weight of the stretch term that keeps the mesh's edge lengths (0: none, as in the
+        paper, whose smoothness lets a mesh shrink onto the part of the object still seen)
     lambda_h : weight of the hold term: vertices the robot holds (``RGBDFrame.held_vertices``)
         stay at its grippers (``RGBDFrame.held_points_m``)
     tether : while the robot holds the object, no vertex may be farther from a held point
