@@ -29,6 +29,7 @@ import numpy as np
 
 from ipc.messages import MeshEstimate, RGBDFrame
 from perception.frame_checks import check_frame, object_lattice_bound, seen_area_m2, spacing_px
+from perception.geometry import lens_coefficients
 from perception.initial_mesh import MIN_SPACING_PX, mesh_vertices, spacing_for_area
 from perception.parameters import LATTICE_BUDGET, MAX_MESH_VERTICES, apply_parameters, check_work, tracker_parameters
 from perception.segmentation import find_object
@@ -337,6 +338,10 @@ class PerceptionCore:
         if (cam.width, cam.height) != (ref.width, ref.height) or not np.allclose(cam.K, ref.K):
             return self._reject("camera_changed", f"frame {frame.seq}: camera {cam.width}x{cam.height} fx={cam.fx:.6g} "
                                 f"differs from the mesh's {ref.width}x{ref.height} fx={ref.fx:.6g}")
+        if cam.frame_id != ref.frame_id or not np.allclose(lens_coefficients(cam.D), lens_coefficients(ref.D)):
+            return self._reject("camera_changed", f"frame {frame.seq}: camera frame {cam.frame_id!r}, distortion "
+                                f"{lens_coefficients(cam.D).tolist()} differ from the mesh's {ref.frame_id!r}, "
+                                f"{lens_coefficients(ref.D).tolist()}")
         found_before = self.tracker.reacquisitions
         try:
             estimate = self.tracker.track(frame)

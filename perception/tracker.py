@@ -67,7 +67,15 @@ from perception.features import (
     resolve_kind,
 )
 from perception.frame_checks import check_frame
-from perception.geometry import Undistorter, face_areas, face_normals, pixel_index, project, rays
+from perception.geometry import (
+    Undistorter,
+    face_areas,
+    face_normals,
+    lens_coefficients,
+    pixel_index,
+    project,
+    rays,
+)
 from perception.initial_mesh import InitialisationError, mesh_from_mask, object_area_m2, place_mesh, spacing_for
 from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
@@ -133,11 +141,6 @@ class _Done:
 
     def exception(self):
         return None
-
-
-def _lens(D: np.ndarray) -> np.ndarray:
-    """(8,) distortion coefficients ``D`` padded with zeros: no coefficients and zero ones are one lens."""
-    return np.pad(np.asarray(D, np.float64).ravel()[:8], (0, max(0, 8 - np.asarray(D).size)))
 
 
 def _camera_text(camera) -> str:
@@ -413,9 +416,10 @@ class MeshTracker:
                 raise TrackingError(f"frame camera changed: initialised on {_camera_text(self._camera)}, got "
                                     f"{_camera_text(c)} (re-initialise for a new camera)")
             first = self._undistort.camera  # as the first frame gave it, lens distortion included
-            if c.frame_id != first.frame_id or not np.allclose(_lens(c.D), _lens(first.D)):
+            lens, first_lens = lens_coefficients(c.D), lens_coefficients(first.D)
+            if c.frame_id != first.frame_id or not np.allclose(lens, first_lens):
                 raise TrackingError(f"frame camera changed: initialised in frame {first.frame_id!r} with distortion "
-                                    f"{_lens(first.D).tolist()}, got {c.frame_id!r} with {_lens(c.D).tolist()} "
+                                    f"{first_lens.tolist()}, got {c.frame_id!r} with {lens.tolist()} "
                                     f"(re-initialise for a new camera)")
         held = frame.held_vertices
         if held is not None and held.size and self.mesh is not None and int(held.max()) >= self.mesh.n_vertices:

@@ -94,6 +94,13 @@ def pixel_index(uv: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np
     return cols, rows, inside
 
 
+def lens_coefficients(D: np.ndarray) -> np.ndarray:
+    """(8,) float64: distortion coefficients ``D`` (0, 4, 5 or 8 of them, OpenCV's order) padded
+    with zeros, so that two descriptions of one lens compare equal (none and all zero alike)."""
+    D = np.asarray(D, np.float64).ravel()[:8]
+    return np.pad(D, (0, 8 - D.size))
+
+
 def crop_intrinsics(K: np.ndarray, x0: float, y0: float) -> np.ndarray:
     """(3, 3) float64 intrinsics of the image window whose top-left pixel is (x0, y0) of the image of ``K``."""
     cropped = np.array(K, dtype=np.float64)

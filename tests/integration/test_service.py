@@ -607,3 +607,16 @@ def test_the_vertex_budgets_count_the_mesh_the_tracker_builds(frames):
     core.set_parameters({"target_vertices": 100})
     # the solver-work budget counts the mesh tracked now, larger than the new target until re-initialised
     assert core.expected_vertices(core.tracker.config) == n > 100
+
+
+def test_a_frame_from_another_lens_or_optical_frame_is_a_changed_camera(frames):
+    core = PerceptionCore(TrackerConfig.realtime())
+    assert core.handle_frame(frames[0]) is not None
+    rectified_again = dataclasses.replace(CAM, D=np.zeros(5))  # no coefficients and zero ones: one lens
+    assert core.handle_frame(dataclasses.replace(frames[1], camera=rectified_again)) is not None
+    wrist = dataclasses.replace(frames[2], camera=dataclasses.replace(CAM, frame_id="wrist_optical"))
+    lens = dataclasses.replace(frames[3], camera=dataclasses.replace(CAM, D=np.array([-0.2, 0.05, 0.0, 0.0])))
+    assert core.handle_frame(wrist) is None and core.handle_frame(lens) is None
+    assert core.counters.rejected == {"camera_changed": 2}
+    assert core.last_error.startswith("frame 3: camera frame") and "[-0.2, 0.05, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]" \
+        in core.last_error
