@@ -28,6 +28,23 @@ def test_ctrl_c_ends_a_wrapped_main_with_one_line_and_status_130(capsys):
         exit_130_on_ctrl_c(lambda argv: argparse.ArgumentParser().parse_args(argv))(["--nope"])
 
 
+def test_ctrl_c_while_a_command_loads_is_one_line_too(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    # The trial command takes most of a second to load its modules (PyBullet, OpenCV, SciPy):
+    # interrupted a fifth of a second in, it is still loading them.
+    child = subprocess.Popen([sys.executable, "-m", "launch_scripts.trials", "--seeds", "0", "--json", "report.json"],
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    time.sleep(0.2)
+    child.send_signal(signal.SIGINT)
+    out, err = child.communicate(timeout=60)
+    assert "Traceback" not in err and err.strip() in ("interrupted", ""), err
+    assert child.returncode in (130, -signal.SIGINT), child.returncode  # the shell's 130 either way
+
+
 def test_track_demo_describes_every_option(capsys):
     from launch_scripts.track_demo import build_parser
 
