@@ -35,9 +35,11 @@ def test_ctrl_c_while_a_command_loads_is_one_line_too(tmp_path):
     import time
 
     # The trial command takes most of a second to load its modules (PyBullet, OpenCV, SciPy):
-    # interrupted a fifth of a second in, it is still loading them.
+    # interrupted a fifth of a second in, it is still loading them. Ctrl-C reaches it as from a
+    # terminal even where the tests run in the background (whose children inherit SIGINT ignored).
     child = subprocess.Popen([sys.executable, "-m", "launch_scripts.trials", "--seeds", "0", "--json", "report.json"],
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path,
+                             preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     time.sleep(0.2)
     child.send_signal(signal.SIGINT)
     out, err = child.communicate(timeout=60)
