@@ -117,16 +117,20 @@ def spacing_for_area(area_m2: float, vertices: int) -> float:
     return float(np.sqrt(area_m2 * _POINTS_PER_SPACING_SQUARED / vertices))
 
 
-def spacing_for(obs: Observation, target_vertices: int, min_px: float = MIN_SPACING_PX) -> float:
-    """The mesh spacing, metres, that gives the object of ``obs`` about ``target_vertices`` vertices.
+def automatic_spacing(area_m2: float, target_vertices: int, median_depth_m: float, fx: float,
+                      min_px: float = MIN_SPACING_PX) -> float:
+    """The spacing, metres, of about ``target_vertices`` vertices over ``area_m2``
+    (``spacing_for_area``), kept at ``min_px`` pixels or more at ``median_depth_m`` for a
+    camera of focal length ``fx`` pixels: finer than that, the image has nothing to say about
+    each triangle."""
+    return float(max(spacing_for_area(area_m2, target_vertices), min_px * median_depth_m / fx))
 
-    A vertex of the hexagonal grid stands for s^2 sqrt(3) / 2 of the object's area
-    (``object_area_m2``). The spacing is kept at ``min_px`` pixels or more at the object's
-    median depth: finer than that, the image has nothing to say about each triangle.
-    """
-    spacing = spacing_for_area(object_area_m2(obs), target_vertices)
+
+def spacing_for(obs: Observation, target_vertices: int, min_px: float = MIN_SPACING_PX) -> float:
+    """The mesh spacing, metres, that gives the object of ``obs`` about ``target_vertices`` vertices
+    (``automatic_spacing`` over the object's area, ``object_area_m2``, and its median depth)."""
     z = obs.depth_m[obs.mask & (obs.depth_m > 0)]
-    return float(max(spacing, min_px * float(np.median(z)) / obs.K[0, 0]))
+    return automatic_spacing(object_area_m2(obs), target_vertices, float(np.median(z)), obs.K[0, 0], min_px)
 
 
 def mesh_from_mask(obs: Observation, spacing_m: float) -> tuple[CanonicalMesh, np.ndarray]:

@@ -29,8 +29,8 @@ import numpy as np
 
 from ipc.messages import MeshEstimate, RGBDFrame
 from perception.frame_checks import check_frame, object_lattice_bound, seen_area_m2, spacing_px
-from perception.geometry import lens_coefficients
-from perception.initial_mesh import MIN_SPACING_PX, mesh_vertices, spacing_for_area
+from perception.geometry import lens_coefficients, same_optics
+from perception.initial_mesh import automatic_spacing, mesh_vertices
 from perception.parameters import LATTICE_BUDGET, MAX_MESH_VERTICES, apply_parameters, check_work, tracker_parameters
 from perception.segmentation import find_object
 from perception.tracker import MeshTracker, TrackerConfig, TrackingError
@@ -312,14 +312,12 @@ class PerceptionCore:
         if config.spacing_m:
             spacing = config.spacing_m
         else:
-            # As the tracker chooses it (``perception.initial_mesh.spacing_for``): about
-            # target_vertices over the object's area, tilted surfaces counting more, so at least
-            # the spacing for its area as seen facing the camera; never under MIN_SPACING_PX.
+            # As the tracker chooses it (``perception.initial_mesh.spacing_for``), on the area as
+            # seen facing the camera: tilted surfaces count more, so the tracker's is no finer.
             z = frame.depth_m[mask & (frame.depth_m > 0)]
             if z.size == 0:
                 return  # no pixel of the object has depth: the tracker says so
-            spacing = max(spacing_for_area(area_m2, config.target_vertices),
-                          MIN_SPACING_PX * float(np.median(z)) / frame.camera.fx)
+            spacing = automatic_spacing(area_m2, config.target_vertices, float(np.median(z)), frame.camera.fx)
         edge_px = spacing_px(frame, mask, spacing)
         if edge_px > max(frame.camera.width, frame.camera.height):
             raise TrackingError(f"the object is smaller than one triangle: spacing_m {spacing:g} spans "
@@ -338,7 +336,7 @@ class PerceptionCore:
         if (cam.width, cam.height) != (ref.width, ref.height) or not np.allclose(cam.K, ref.K):
             return self._reject("camera_changed", f"frame {frame.seq}: camera {cam.width}x{cam.height} fx={cam.fx:.6g} "
                                 f"differs from the mesh's {ref.width}x{ref.height} fx={ref.fx:.6g}")
-        if cam.frame_id != ref.frame_id or not np.allclose(lens_coefficients(cam.D), lens_coefficients(ref.D)):
+        if not same_optics(cam, ref):
             return self._reject("camera_changed", f"frame {frame.seq}: camera frame {cam.frame_id!r}, distortion "
                                 f"{lens_coefficients(cam.D).tolist()} differ from the mesh's {ref.frame_id!r}, "
                                 f"{lens_coefficients(ref.D).tolist()}")

@@ -75,6 +75,7 @@ from perception.geometry import (
     pixel_index,
     project,
     rays,
+    same_optics,
 )
 from perception.initial_mesh import InitialisationError, mesh_from_mask, object_area_m2, place_mesh, spacing_for
 from perception.mesh import CanonicalMesh, barycentric_matrix
@@ -416,11 +417,10 @@ class MeshTracker:
                 raise TrackingError(f"frame camera changed: initialised on {_camera_text(self._camera)}, got "
                                     f"{_camera_text(c)} (re-initialise for a new camera)")
             first = self._undistort.camera  # as the first frame gave it, lens distortion included
-            lens, first_lens = lens_coefficients(c.D), lens_coefficients(first.D)
-            if c.frame_id != first.frame_id or not np.allclose(lens, first_lens):
+            if not same_optics(c, first):
                 raise TrackingError(f"frame camera changed: initialised in frame {first.frame_id!r} with distortion "
-                                    f"{first_lens.tolist()}, got {c.frame_id!r} with {lens.tolist()} "
-                                    f"(re-initialise for a new camera)")
+                                    f"{lens_coefficients(first.D).tolist()}, got {c.frame_id!r} with "
+                                    f"{lens_coefficients(c.D).tolist()} (re-initialise for a new camera)")
         held = frame.held_vertices
         if held is not None and held.size and self.mesh is not None and int(held.max()) >= self.mesh.n_vertices:
             raise TrackingError(f"RGBDFrame.held_vertices: vertex {int(held.max())} is not in the tracked mesh "

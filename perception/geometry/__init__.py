@@ -28,6 +28,7 @@ from perception.geometry._camera import (
     project,
     ray_lengths,
     rays,
+    same_optics,
 )
 from perception.geometry._checks import (
     check_ids,
@@ -86,6 +87,7 @@ __all__ = [
     "rays",
     "rigid_transform",
     "rotation_about_axis",
+    "same_optics",
     "transform_points",
     "unique_edges",
     "vertex_normals",

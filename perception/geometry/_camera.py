@@ -101,6 +101,12 @@ def lens_coefficients(D: np.ndarray) -> np.ndarray:
     return np.pad(D, (0, 8 - D.size))
 
 
+def same_optics(a: CameraInfo, b: CameraInfo) -> bool:
+    """Whether cameras ``a`` and ``b`` name the same optical frame and lens distortion
+    (``lens_coefficients``; size and intrinsics are not compared)."""
+    return a.frame_id == b.frame_id and bool(np.allclose(lens_coefficients(a.D), lens_coefficients(b.D)))
+
+
 def crop_intrinsics(K: np.ndarray, x0: float, y0: float) -> np.ndarray:
     """(3, 3) float64 intrinsics of the image window whose top-left pixel is (x0, y0) of the image of ``K``."""
     cropped = np.array(K, dtype=np.float64)
