@@ -74,6 +74,9 @@ __all__ = [
 
 #: Seconds between two heartbeats of a publisher.
 HEARTBEAT_PERIOD_S = 1.0
+#: Fewest seconds between two heartbeats: heartbeats sent more often fill a subscriber's
+#: queue (``HWM`` messages) and crowd out the frames and estimates they stand beside.
+MIN_HEARTBEAT_PERIOD_S = 0.05
 #: Seconds without any message after which a subscriber reports its publisher gone.
 STALE_AFTER_S = 3.0
 #: Seconds a client waits for each reply attempt, and attempts before giving up.
@@ -354,6 +357,7 @@ class Publisher:
     depth_scale : send RGBDFrame depth as uint16 with this many units per metre
         (``codec.encode``); None sends float32 metres
     hwm : messages queued per subscriber before new ones are dropped for it
+    limits : caps that subscribers keep; a larger message is refused by ``publish``
     curve : CurveServer to encrypt and accept only listed subscribers, or None
 
     ``publish`` never blocks: a subscriber that cannot keep up loses messages (its
@@ -372,7 +376,11 @@ class Publisher:
         curve: CurveServer | None = None,
     ):
         Heartbeat(source=source, period_s=heartbeat_period_s)  # validates both before binding
+        if heartbeat_period_s < MIN_HEARTBEAT_PERIOD_S:
+            raise ValueError(f"heartbeat period: expected at least {MIN_HEARTBEAT_PERIOD_S} s (more often, heartbeats "
+                             f"crowd the messages out of subscribers' queues), got {heartbeat_period_s:g} s")
         self.source = source
+        self.limits = limits
         self.heartbeat_period_s = float(heartbeat_period_s)
         self.depth_scale = depth_scale
         self._socket = _Socket(zmq.PUB, endpoint, bind=True, limits=limits, curve=curve, hwm=hwm)
@@ -384,8 +392,14 @@ class Publisher:
         log.info("%s: publishing as %r", self.endpoint, source)
 
     def publish(self, msg) -> None:
-        """Encode and send ``msg`` (any message type); raises ProtocolError if it cannot travel."""
+        """Encode and send ``msg`` (any message type); raises ProtocolError if it cannot travel:
+        among others, a message larger than ``limits.max_message_bytes``, which subscribers
+        refuse (ZeroMQ then drops their connection without a word, so it is not sent)."""
         frames = encode(msg, depth_scale=self.depth_scale)
+        size = sum(memoryview(f).nbytes for f in frames)
+        if size > self.limits.max_message_bytes:
+            raise ProtocolError(f"{self.endpoint}: {type(msg).__name__} message of {size} bytes exceeds the "
+                                f"{self.limits.max_message_bytes}-byte message limit subscribers keep; not sent")
         with self._lock:
             if self._socket.sock is None:
                 raise ValueError(f"{self.endpoint}: publisher is closed")

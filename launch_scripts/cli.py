@@ -95,7 +95,12 @@ def finite_float(text: str) -> float:
 
 
 def endpoint(text: str) -> str:
-    """argparse type: a ZeroMQ endpoint to bind or connect (``ipc.endpoints.check_endpoint``)."""
+    """argparse type: a ZeroMQ endpoint to bind or connect (``ipc.endpoints.check_endpoint``)
+    that another process can reach: not ``inproc://``, which only sockets of the same process
+    (one ZeroMQ context) reach, so that a command bound there would serve nobody."""
+    if text.startswith("inproc://"):
+        raise argparse.ArgumentTypeError(f"{text}: an inproc:// endpoint is reached only from inside this process; "
+                                         "use tcp:// or ipc://")
     try:
         return check_endpoint(text)
     except ValueError as e:

@@ -23,7 +23,7 @@ import sys
 import threading
 
 from ipc import endpoints
-from ipc.transport import HEARTBEAT_PERIOD_S
+from ipc.transport import HEARTBEAT_PERIOD_S, MIN_HEARTBEAT_PERIOD_S
 from launch_scripts.cli import (
     OneLineParser,
     add_log_level_argument,
@@ -63,8 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--max-frames", type=positive_int, help="stop after this many frames")
     g.add_argument("--start-delay-s", type=non_negative_float, default=0.5,
                    help="wait after binding so that waiting subscribers get the first frame (default 0.5)")
-    g.add_argument("--heartbeat-period-s", type=float, default=HEARTBEAT_PERIOD_S,
-                   help=f"seconds between heartbeats (default {HEARTBEAT_PERIOD_S:g})")
+    g.add_argument("--heartbeat-period-s", type=positive_float, default=HEARTBEAT_PERIOD_S,
+                   help=f"seconds between heartbeats, at least {MIN_HEARTBEAT_PERIOD_S:g} (default {HEARTBEAT_PERIOD_S:g})")
     add_print_endpoints_argument(g, '{"frames": ENDPOINT}')
     add_log_level_argument(g)
     add_security_arguments(common)
@@ -108,7 +108,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("rosbag", parents=[common], help="a ROS 1 or ROS 2 bag (rosbags)")
     p.add_argument("path", help="the bag (.bag file or ROS 2 bag folder)")
-    p.add_argument("--rgb-topic", required=True, help="sensor_msgs/Image colour topic (rgb8 or bgr8)")
+    p.add_argument("--rgb-topic", required=True,
+                   help="colour topic: sensor_msgs/Image (rgb8 or bgr8) or sensor_msgs/CompressedImage (JPEG or PNG)")
     p.add_argument("--depth-topic", required=True,
                    help="sensor_msgs/Image depth topic registered to colour (16UC1 mm or 32FC1 m)")
     p.add_argument("--info-topic", required=True, help="sensor_msgs/CameraInfo topic of the colour camera")

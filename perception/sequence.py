@@ -7,7 +7,8 @@ Layout (the recorded sequence folder; the offline command and the sim recorder u
       rgb/*.png, depth/*.png    8-bit colour; uint16 depth, metres = value / depth_scale, 0 = missing
       camera_intrinsic.json     Open3D PinholeCameraIntrinsic: {"width", "height",
                                 "intrinsic_matrix": 9 numbers, column-major}, optional
-                                "depth_scale" (default 5000, TUM's)
+                                "depth_scale" (default 5000, TUM's, with a warning:
+                                millimetres need 1000)
       groundtruth_mesh.npz      simulation only: vertices (T, V, 3) float32 camera frame,
                                 faces (F, 3) int, uv (V, 2) material coordinates
 
@@ -18,7 +19,8 @@ once, then ordered by colour timestamp.
 Reading: ``open_sequence(path)`` checks the lists, the intrinsics, the first pair of
 images and the ground truth, and raises ``SequenceError`` (a ValueError) with a
 one-line message naming the file and the problem; later frames are checked as they
-are read. Writing: ``SequenceWriter``.
+are read. It warns of what it cannot check: a depth scale taken by default, and frames
+so far apart that their timestamps are unlikely to be seconds. Writing: ``SequenceWriter``.
 """
 
 from __future__ import annotations
@@ -52,18 +54,19 @@ def _number(value, what: str, where: Path) -> float:
     return float(value)
 
 
-def read_intrinsics(path) -> tuple[CameraInfo, float]:
+def read_intrinsics(path) -> tuple[CameraInfo, float | None]:
     """Read an Open3D ``camera_intrinsic.json``.
 
     path : the JSON file
-    returns (CameraInfo with K row-major, depth_scale in units per metre)
+    returns (CameraInfo with K row-major, depth_scale in depth PNG units per metre, or None
+    when the file gives none)
     raises SequenceError naming the file
     """
     path = Path(path)
     if not path.is_file():
         raise SequenceError(f"{path}: file not found")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        data = json.loads(path.read_text(encoding="utf-8-sig"))
     except (OSError, UnicodeDecodeError) as exc:
         raise SequenceError(f"{path}: unreadable ({exc.__class__.__name__})") from None
     except json.JSONDecodeError as exc:
@@ -87,9 +90,11 @@ def read_intrinsics(path) -> tuple[CameraInfo, float]:
         hint = " (it looks row-major: cx, cy belong in entries 7 and 8)" if K[0, 2] == 0 and K[1, 2] == 0 else ""
         raise SequenceError(f"{path}: intrinsic_matrix is not a column-major pinhole matrix "
                             f"[fx, 0, 0, 0, fy, 0, cx, cy, 1]{hint}")
-    depth_scale = _number(data.get("depth_scale", DEFAULT_DEPTH_SCALE), "depth_scale", path)
-    if depth_scale <= 0:
-        raise SequenceError(f"{path}: depth_scale must be positive, got {depth_scale}")
+    depth_scale = None
+    if "depth_scale" in data:
+        depth_scale = _number(data["depth_scale"], "depth_scale", path)
+        if depth_scale <= 0:
+            raise SequenceError(f"{path}: depth_scale must be positive, got {depth_scale}")
     try:
         camera = CameraInfo(width=width, height=height, K=K)
     except ValueError as exc:
@@ -126,7 +131,7 @@ def read_file_list(path) -> tuple[np.ndarray, list[str]]:
     stamps: list[float] = []
     files: list[str] = []
     try:
-        lines = path.read_text(encoding="utf-8").splitlines()
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
     except (OSError, UnicodeDecodeError) as exc:
         raise SequenceError(f"{path}: unreadable ({exc.__class__.__name__})") from None
     for lineno, line in enumerate(lines, start=1):
@@ -311,6 +316,33 @@ def _listed_paths(root: Path, list_file: Path, relative: list[str]) -> list[Path
     return out
 
 
+#: Median spacing of a sequence's frames, seconds, beyond which its timestamps are likely not
+#: seconds (milliseconds since the epoch are a common mistake: 33 ms frames would play 33 s
+#: apart when paced by their timestamps).
+MAX_LIKELY_SPACING_S = 5.0
+
+
+def _warn_default_depth_scale(intrinsics: Path, raw_depth: np.ndarray) -> None:
+    """Say that ``intrinsics`` gives no depth_scale and TUM's is taken, with the median depth
+    of the first frame ``raw_depth`` (uint16) that gives, and with millimetres: a recording in
+    millimetres read at TUM's 5000 units per metre lies five times too near."""
+    measured = raw_depth[raw_depth > 0]
+    median = float(np.median(measured)) if measured.size else float("nan")
+    log.warning("%s has no depth_scale: taking TUM's %g units per metre (the first frame's median depth is "
+                "then %.2f m; %.2f m in millimetres, which need \"depth_scale\": 1000)", intrinsics,
+                DEFAULT_DEPTH_SCALE, median / DEFAULT_DEPTH_SCALE, median / 1000.0)
+
+
+def _warn_unlikely_spacing(list_file: Path, timestamps: np.ndarray) -> None:
+    """Say so when the frames of ``list_file`` lie more than ``MAX_LIKELY_SPACING_S`` apart (median)."""
+    if len(timestamps) < 2:
+        return
+    spacing = float(np.median(np.diff(timestamps)))
+    if spacing > MAX_LIKELY_SPACING_S:
+        log.warning("%s: frames %.3g s apart (median); TUM timestamps are seconds: are these milliseconds?",
+                    list_file, spacing)
+
+
 def open_sequence(path) -> Sequence:
     """Open and check a recorded sequence folder.
 
@@ -335,10 +367,15 @@ def open_sequence(path) -> Sequence:
                     len(depth_stamps), len(pairs), MAX_TIME_DIFFERENCE_S)
     # check the first pair now, so a wrong size or format fails at open, not mid-run
     _read_image(rgb_files[0], depth=False, camera=camera)
-    _read_image(depth_files[0], depth=True, camera=camera)
+    first_depth = _read_image(depth_files[0], depth=True, camera=camera)
+    if depth_scale is None:
+        depth_scale = DEFAULT_DEPTH_SCALE
+        _warn_default_depth_scale(root / INTRINSICS_FILE, first_depth)
+    timestamps = rgb_stamps[pairs[:, 0]]
+    _warn_unlikely_spacing(root / "rgb.txt", timestamps)
     gt_path = root / GROUNDTRUTH_FILE
     groundtruth = _read_groundtruth(gt_path, len(pairs)) if gt_path.exists() else None
-    return Sequence(path=root, camera=camera, depth_scale=depth_scale, timestamps=rgb_stamps[pairs[:, 0]],
+    return Sequence(path=root, camera=camera, depth_scale=depth_scale, timestamps=timestamps,
                     rgb_files=tuple(rgb_files), depth_files=tuple(depth_files), groundtruth=groundtruth)
 
 

@@ -29,7 +29,7 @@ class RerunViewer:
             rr = importlib.import_module("rerun")
         except ImportError as e:
             raise RuntimeError(f"the live viewer needs the Python module 'rerun' ({e}); "
-                               "install it with: pip install 'clothkit[viewer]'") from None
+                               "install it from the clothkit checkout with: pip install -e '.[viewer]'") from None
         self._rr = rr
         rr.init("clothkit perception", spawn=(target == "spawn"))
         if target != "spawn":

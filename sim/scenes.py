@@ -138,10 +138,19 @@ class SceneSpec:
     occluders: Callable[[float], SolidMesh | None] | None = None
 
 
+#: Largest simulated image side, pixels (a 4K camera's width). PyBullet's software renderer
+#: allocates several buffers of the image's size and aborts the whole process when it cannot
+#: (a 100000-pixel side), so the size is checked before it is asked.
+MAX_CAMERA_SIDE_PX = 4096
+
+
 def kinect_camera(width: int, height: int) -> CameraInfo:
     """Kinect-like intrinsics (f = 525 px at 640 wide, principal point at the image centre)."""
     if int(width) < 16 or int(height) < 16:
         raise ValueError(f"camera size: expected at least 16x16 pixels, got {width}x{height}")
+    if int(width) > MAX_CAMERA_SIDE_PX or int(height) > MAX_CAMERA_SIDE_PX:
+        raise ValueError(f"camera size: expected at most {MAX_CAMERA_SIDE_PX}x{MAX_CAMERA_SIDE_PX} pixels, "
+                         f"got {width}x{height}")
     f = 525.0 * int(width) / 640.0
     K = np.array([[f, 0.0, (int(width) - 1) / 2.0], [0.0, f, (int(height) - 1) / 2.0], [0.0, 0.0, 1.0]])
     return CameraInfo(width=int(width), height=int(height), K=K)

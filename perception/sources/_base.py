@@ -39,13 +39,19 @@ def optional_import(module: str, extra: str, feature: str):
     module : import name, e.g. "pyrealsense2"
     extra : the clothkit extra that installs it, e.g. "realsense"
     feature : what needs it, for the message
-    raises SourceError naming the install command when the module is missing
+    raises SourceError naming the install command when the module is missing, and what it
+    could not load when it is installed but does not load (a system library it needs, such
+    as libusb-1.0 for pyrealsense2, or the Azure Kinect SDK for pyk4a)
     """
     try:
         return importlib.import_module(module)
     except ImportError as e:
-        raise SourceError(f"{feature} needs the Python module {module!r}, which cannot be imported ({e}); "
-                          f"install it with: pip install 'clothkit[{extra}]'") from None
+        top = module.split(".")[0]
+        if isinstance(e, ModuleNotFoundError) and e.name in (top, module):
+            raise SourceError(f"{feature} needs the Python module {module!r}, which is not installed; install it "
+                              f"from the clothkit checkout with: pip install -e '.[{extra}]'") from None
+        raise SourceError(f"{feature} needs the Python module {module!r}, which is installed but does not load "
+                          f"({e}); install the system libraries it needs (the README's paragraph on real sensors)") from None
 
 
 class FrameSource(abc.ABC):

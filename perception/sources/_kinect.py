@@ -343,6 +343,8 @@ class KinectSource(FrameSource):
                 capture = self._device.get_capture(timeout=self.timeout_ms)
             except k4a.K4ATimeoutException:
                 raise SourceError(f"Kinect: no capture within {self.timeout_ms} ms") from None
+            except k4a.K4AException as e:  # the device failed or was unplugged mid-stream
+                raise SourceError(f"Kinect: the device stopped delivering captures ({e})") from None
             frame = frame_from_kinect(capture, self.camera, self._seq, self._to_colour, self.colour_format)
             if frame is None:
                 log.debug("Kinect: capture without colour or depth skipped")

@@ -20,6 +20,7 @@ import logging
 from collections.abc import Iterator
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from ipc.messages import CameraInfo, RGBDFrame
@@ -55,10 +56,32 @@ def camera_info_from_realsense(intrinsics, rs, frame_id: str = "camera_color_opt
     return CameraInfo(width=int(intrinsics.width), height=int(intrinsics.height), K=K, D=D, frame_id=frame_id)
 
 
+def _rgb_of(colour: np.ndarray, fmt, rs, shape: tuple[int, int]) -> np.ndarray:
+    """(H, W, 3) uint8 RGB, a copy, from a colour frame's data in format ``fmt``: rgb8, bgr8,
+    rgba8, bgra8 ((H, W, 3 or 4) uint8) or yuyv ((H, W, 2) uint8, or (H, W) uint16 as the
+    SDK hands it), as cameras and the RealSense Viewer record them. Raises SourceError for another format or shape."""
+    channels = {rs.format.rgb8: 3, rs.format.bgr8: 3, rs.format.rgba8: 4, rs.format.bgra8: 4, rs.format.yuyv: 2}
+    if fmt == rs.format.yuyv and colour.shape == shape and colour.dtype == np.uint16:
+        colour = colour.view(np.uint8).reshape(shape + (2,))  # the SDK hands YUYV as one uint16 a pixel
+    if fmt not in channels:
+        raise SourceError(f"RealSense: colour format {fmt} is not supported; expected rgb8, bgr8, rgba8, bgra8 or yuyv")
+    if colour.shape != shape + (channels[fmt],) or colour.dtype != np.uint8:
+        raise SourceError(f"RealSense: expected a {shape + (channels[fmt],)} uint8 colour image in {fmt}, got "
+                          f"{colour.shape} {colour.dtype}")
+    # The SDK owns the frame buffers and recycles them: every branch copies out.
+    if fmt == rs.format.rgb8:
+        return np.array(colour, dtype=np.uint8, copy=True)
+    if fmt == rs.format.bgr8:
+        return np.ascontiguousarray(colour[:, :, ::-1])
+    if fmt == rs.format.yuyv:
+        return cv2.cvtColor(colour, cv2.COLOR_YUV2RGB_YUYV)
+    return cv2.cvtColor(colour, cv2.COLOR_RGBA2RGB if fmt == rs.format.rgba8 else cv2.COLOR_BGRA2RGB)
+
+
 def frame_from_realsense(colour_frame, depth_frame, camera: CameraInfo, depth_unit_m: float, rs) -> RGBDFrame:
     """RGBDFrame from an aligned pair of pyrealsense2 frames.
 
-    colour_frame : video frame, format rgb8 or bgr8, (H, W, 3) uint8 data
+    colour_frame : video frame, format rgb8, bgr8, rgba8, bgra8 or yuyv (``_rgb_of``)
     depth_frame : depth frame aligned to colour, z16: (H, W) uint16 in units of ``depth_unit_m``
     camera : CameraInfo of the colour stream (H, W must match)
     depth_unit_m : metres per depth unit (the depth sensor's ``get_depth_scale()``)
@@ -69,34 +92,31 @@ def frame_from_realsense(colour_frame, depth_frame, camera: CameraInfo, depth_un
     colour = np.asanyarray(colour_frame.get_data())
     raw = np.asanyarray(depth_frame.get_data())
     shape = (camera.height, camera.width)
-    if colour.shape != shape + (3,) or colour.dtype != np.uint8:
-        raise SourceError(f"RealSense: expected a {shape + (3,)} uint8 colour image, got {colour.shape} {colour.dtype}")
+    rgb = _rgb_of(colour, fmt, rs, shape)
     if raw.shape != shape or raw.dtype != np.uint16:
         raise SourceError(f"RealSense: expected a {shape} uint16 depth image aligned to colour, got {raw.shape} {raw.dtype}")
-    # The SDK owns the frame buffers and recycles them: copy out before the frame is released.
-    if fmt == rs.format.rgb8:
-        rgb = np.array(colour, dtype=np.uint8, copy=True)
-    elif fmt == rs.format.bgr8:
-        rgb = np.ascontiguousarray(colour[:, :, ::-1])
-    else:
-        raise SourceError(f"RealSense: colour format {fmt} is not supported; expected rgb8 or bgr8")
     depth_m = raw.astype(np.float32) * np.float32(depth_unit_m)
     return RGBDFrame(rgb=rgb, depth_m=depth_m, camera=camera, timestamp_s=colour_frame.get_timestamp() / 1000.0,
                      seq=int(colour_frame.get_frame_number()))
+
+
+#: The device options' defaults, which a recording leaves as they are.
+_DEFAULTS = {"width": 640, "height": 480, "fps": 30, "serial": None}
 
 
 class RealSenseSource(FrameSource):
     """A RealSense camera streaming colour (rgb8) and depth (z16) at one size and rate, or a
     recording of one.
 
-    width, height : pixels of both streams (the depth image is aligned to colour anyway);
-        ignored for a recording, which has its own
-    fps : frames per second the device is asked for; ignored for a recording
+    width, height : pixels of both streams (the depth image is aligned to colour anyway)
+    fps : frames per second the device is asked for
     serial : device serial number, or None for the first camera found
     timeout_s : seconds to wait for a frame before giving up with SourceError
     recording : path of a ``.db3`` or ``.bag`` recording to play instead of a camera; then
         ``frames()`` is one pass over it (a finite source) and ``name`` is
-        ``realsense:FILE``
+        ``realsense:FILE``. A recording has its own size, rate and device: any of
+        ``width``, ``height``, ``fps`` and ``serial`` other than the defaults is refused
+        with it (ValueError), rather than ignored.
 
     ``depth_scale`` (units per metre on the wire) is 1 / the device's depth unit, so the
     raw depth values travel unchanged.
@@ -106,6 +126,12 @@ class RealSenseSource(FrameSource):
 
     def __init__(self, width: int = 640, height: int = 480, fps: int = 30, serial: str | None = None,
                  timeout_s: float = 5.0, recording: str | Path | None = None):
+        if recording is not None:
+            given = dict(width=width, height=height, fps=fps, serial=serial)
+            changed = [f"{k}={v!r}" for k, v in given.items() if v != _DEFAULTS[k]]
+            if changed:
+                raise ValueError(f"RealSenseSource: a recording has its own size, frame rate and device; got "
+                                 f"{', '.join(changed)} with recording={str(recording)!r}")
         rs = optional_import("pyrealsense2", extra="realsense", feature="the RealSense source")
         self._rs = rs
         self.timeout_ms = int(1000 * timeout_s)
@@ -181,8 +207,11 @@ class RealSenseSource(FrameSource):
             playback.start()
             for frameset in playback.framesets():
                 aligned = self._align.process(frameset)
-                yield frame_from_realsense(aligned.get_color_frame(), aligned.get_depth_frame(), self.camera,
-                                           self.depth_unit_m, self._rs)
+                colour, depth = aligned.get_color_frame(), aligned.get_depth_frame()
+                if not colour or not depth:
+                    log.debug("RealSense recording: incomplete frameset skipped")
+                    continue
+                yield frame_from_realsense(colour, depth, self.camera, self.depth_unit_m, self._rs)
         finally:
             playback.close()
             self._playback = None
@@ -222,18 +251,18 @@ class _Playback:
         self.playback = self.device.as_playback()
         self.playback.set_real_time(True)  # at the recorded pace, as the camera delivered it
         self._sensors, self._queues, self._profiles = [], {}, {}
-        for sensor in self.device.query_sensors():
+        for index, sensor in enumerate(self.device.query_sensors()):
             for profile in sensor.get_stream_profiles():
                 kind = profile.stream_type()
                 if kind in (rs.stream.color, rs.stream.depth) and kind not in self._profiles:
-                    self._profiles[kind] = (sensor, profile)
+                    self._profiles[kind] = (index, sensor, profile)
         missing = [name for kind, name in ((rs.stream.color, "colour"), (rs.stream.depth, "depth")) if kind not in self._profiles]
         if missing:
             raise SourceError(f"RealSense: {path} has no {' and no '.join(missing)} stream")
-        colour = self._profiles[rs.stream.color][1].as_video_stream_profile()
+        colour = self._profiles[rs.stream.color][2].as_video_stream_profile()
         self.colour_intrinsics = colour.get_intrinsics()
         self.fps = colour.fps() or 30
-        self.depth_unit_m = _depth_unit(self._profiles[rs.stream.depth][0].as_depth_sensor())
+        self.depth_unit_m = _depth_unit(self._profiles[rs.stream.depth][1].as_depth_sensor())
         self._pending: list = []
         self._playing = False
         self._combine = rs.processing_block(lambda frame, source: source.frame_ready(
@@ -246,12 +275,18 @@ class _Playback:
         until both listen, so that no stream loses its first frames."""
         rs = self._rs
         self.playback.pause()
-        for kind, (sensor, profile) in self._profiles.items():
-            queue = rs.frame_queue(self.QUEUE_FRAMES, keep_frames=True)
-            sensor.open(profile)
-            sensor.start(queue)
+        by_sensor: dict[int, tuple] = {}
+        for kind, (index, sensor, profile) in self._profiles.items():
+            self._queues[kind] = rs.frame_queue(self.QUEUE_FRAMES, keep_frames=True)
+            by_sensor.setdefault(index, (sensor, []))[1].append(profile)
+        for sensor, profiles in by_sensor.values():
+            if len(profiles) == 1:
+                sensor.open(profiles[0])
+                sensor.start(self._queues[profiles[0].stream_type()])
+            else:  # one sensor streams both (a D405's): opened once, its frames sorted by stream
+                sensor.open(profiles)
+                sensor.start(lambda frame: self._queues[frame.get_profile().stream_type()].enqueue(frame))
             self._sensors.append(sensor)
-            self._queues[kind] = queue
         self.playback.seek(datetime.timedelta(0))
         self.playback.resume()
 

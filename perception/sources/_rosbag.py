@@ -1,8 +1,9 @@
 """Frames from a ROS 1 or ROS 2 bag through the pure-Python ``rosbags`` library (extra "rosbag").
 
-Reads ``sensor_msgs/Image`` colour and depth topics and one ``sensor_msgs/CameraInfo``
-topic. The depth topic must be registered to colour (e.g. RealSense's
-``/camera/aligned_depth_to_color/image_raw``): same size, same intrinsics.
+Reads a colour topic (``sensor_msgs/Image``, or ``sensor_msgs/CompressedImage`` in JPEG or
+PNG, as camera drivers often record colour), a ``sensor_msgs/Image`` depth topic and one
+``sensor_msgs/CameraInfo`` topic. The depth topic must be registered to colour (e.g.
+RealSense's ``/camera/aligned_depth_to_color/image_raw``): same size, same intrinsics.
 
 Encodings: colour ``rgb8`` or ``bgr8``; depth ``16UC1`` (millimetres, REP 118's
 convention for integer depth; 0 = no measurement) or ``32FC1`` (metres; NaN or 0 = no
@@ -16,6 +17,7 @@ import logging
 from collections.abc import Iterator
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from ipc.messages import CameraInfo, RGBDFrame
@@ -28,6 +30,9 @@ log = logging.getLogger(__name__)
 MILLIMETRES_PER_METRE = 1000.0
 COLOUR_ENCODINGS = ("rgb8", "bgr8")
 DEPTH_ENCODINGS = ("16UC1", "mono16", "32FC1")
+#: Message types each topic may carry (rosbags names them so for ROS 1 and ROS 2 bags alike).
+IMAGE, COMPRESSED_IMAGE, CAMERA_INFO = "sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage", "sensor_msgs/msg/CameraInfo"
+TOPIC_TYPES = {"rgb": (IMAGE, COMPRESSED_IMAGE), "depth": (IMAGE,), "info": (CAMERA_INFO,)}
 
 
 def _stamp_s(msg) -> float:
@@ -59,6 +64,13 @@ def rgb_from_image(msg) -> np.ndarray:
         raise SourceError(f"rosbag: colour encoding {msg.encoding!r} is not supported; expected one of {COLOUR_ENCODINGS}")
     rgb = _pixels(msg, 3, np.uint8)
     return np.ascontiguousarray(rgb[:, :, ::-1]) if msg.encoding == "bgr8" else rgb
+
+
+def rgb_from_compressed(msg) -> np.ndarray | None:
+    """(H, W, 3) uint8 RGB from a sensor_msgs/CompressedImage (JPEG or PNG colour); None when
+    its data does not decode."""
+    bgr = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_COLOR)
+    return None if bgr is None else cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
 
 
 def depth_from_image(msg) -> np.ndarray:
@@ -96,12 +108,15 @@ class RosbagSource(FrameSource):
     """Plays colour and depth images of a bag (a ROS 1 ``.bag`` file or a ROS 2 bag folder).
 
     path : the bag
-    rgb_topic, depth_topic : sensor_msgs/Image topics; depth registered to colour
+    rgb_topic : sensor_msgs/Image or sensor_msgs/CompressedImage colour topic
+    depth_topic : sensor_msgs/Image depth topic, registered to colour
     info_topic : sensor_msgs/CameraInfo topic of the colour camera (its first message is used)
 
     Frames: seq = index of the pair, timestamp_s = colour header stamp. ``depth_scale`` is
     1000 (millimetres) when the depth topic is 16UC1, None (float32 metres) for 32FC1.
     The bag is read twice per pass: once for the stamps (to pair images), once for pixels.
+    A compressed colour image that does not decode drops its frame, with a warning, and is
+    counted in ``skipped``.
     """
 
     def __init__(self, path: str | Path, rgb_topic: str, depth_topic: str, info_topic: str):
@@ -113,6 +128,7 @@ class RosbagSource(FrameSource):
         if not self.path.exists():
             raise SourceError(f"rosbag {self.path}: no such file or folder")
         self.name = f"rosbag:{self.path.name}"
+        self.skipped = 0
         self.topics = {"rgb": rgb_topic, "depth": depth_topic, "info": info_topic}
         with self._reader() as reader:
             by_topic = {c.topic: c for c in reader.connections}
@@ -120,6 +136,10 @@ class RosbagSource(FrameSource):
                 if topic not in by_topic:
                     raise SourceError(f"rosbag {self.path}: no topic {topic!r} for {role}; topics: "
                                       f"{', '.join(sorted(by_topic)) or 'none'}")
+                if by_topic[topic].msgtype not in TOPIC_TYPES[role]:
+                    raise SourceError(f"rosbag {self.path}: the {role} topic {topic!r} carries "
+                                      f"{by_topic[topic].msgtype}; expected {' or '.join(TOPIC_TYPES[role])}")
+            self._compressed = by_topic[rgb_topic].msgtype == COMPRESSED_IMAGE
             stamps = {"rgb": [], "depth": []}
             depth_encodings = set()
             for connection, _, raw in reader.messages(connections=[by_topic[rgb_topic], by_topic[depth_topic],
@@ -171,7 +191,7 @@ class RosbagSource(FrameSource):
         want_rgb = {int(i): k for k, i in enumerate(self._pairs[:, 0])}
         want_depth = {int(j): k for k, j in enumerate(self._pairs[:, 1])}
         rgb_topic, depth_topic = self.topics["rgb"], self.topics["depth"]
-        pending: dict[int, dict] = {}
+        pending: dict[int, dict | None] = {}  # pair -> its halves read so far; None: dropped
         next_pair = 0
         counts = {"rgb": 0, "depth": 0}
         shape = (self.camera.height, self.camera.width)
@@ -185,14 +205,27 @@ class RosbagSource(FrameSource):
                 if pair is None:
                     continue
                 msg = self._deserialize(reader, raw, connection)
-                image = rgb_from_image(msg) if role == "rgb" else depth_from_image(msg)
-                if image.shape[:2] != shape:
+                if role == "depth":
+                    image = depth_from_image(msg)
+                elif self._compressed:
+                    image = rgb_from_compressed(msg)
+                    if image is None:  # a corrupt image: its frame is dropped, as a camera drops one
+                        log.warning("%s: a %d-byte compressed colour image on %s does not decode; its frame is "
+                                    "skipped", self.name, len(msg.data), rgb_topic)
+                        self.skipped += 1
+                        pending[pair] = None
+                        image = None
+                else:
+                    image = rgb_from_image(msg)
+                if image is not None and image.shape[:2] != shape:
                     raise SourceError(f"rosbag {self.path}: {connection.topic} image is {image.shape[1]}x{image.shape[0]}, "
                                       f"the camera info says {shape[1]}x{shape[0]} (is depth registered to colour?)")
-                pending.setdefault(pair, {})[role] = image
+                if image is not None and pair >= next_pair and pending.get(pair, {}) is not None:
+                    pending.setdefault(pair, {})[role] = image
                 # Emit pairs in colour-time order as soon as both halves have been read.
-                while next_pair in pending and len(pending[next_pair]) == 2:
+                while next_pair in pending and (pending[next_pair] is None or len(pending[next_pair]) == 2):
                     half = pending.pop(next_pair)
-                    yield RGBDFrame(rgb=half["rgb"], depth_m=half["depth"], camera=self.camera,
-                                    timestamp_s=float(self.timestamps[next_pair]), seq=next_pair)
+                    if half is not None:
+                        yield RGBDFrame(rgb=half["rgb"], depth_m=half["depth"], camera=self.camera,
+                                        timestamp_s=float(self.timestamps[next_pair]), seq=next_pair)
                     next_pair += 1

@@ -53,11 +53,15 @@ def timestamp_ms(k):
     return 5000.0 + 1000.0 * k / FPS
 
 
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory):
+@pytest.fixture(scope="module", params=["two sensors", "one sensor"])
+def recording(tmp_path_factory, request):
+    """A recording of N frames; with "one sensor" both streams come from one sensor, as on a
+    D405, whose recordings the playback must open once for both."""
     path = tmp_path_factory.mktemp("realsense") / "sheet.db3"
     device = rs.software_device()
-    depth_sensor, colour_sensor = device.add_sensor("Depth"), device.add_sensor("Color")
+    one = request.param == "one sensor"
+    depth_sensor = device.add_sensor("Stereo Module" if one else "Depth")
+    colour_sensor = depth_sensor if one else device.add_sensor("Color")
     depth_profile = depth_sensor.add_video_stream(stream(rs.stream.depth, 0, rs.format.z16, 2))
     colour_profile = colour_sensor.add_video_stream(stream(rs.stream.color, 1, rs.format.rgb8, 3))
     depth_sensor.add_read_only_option(rs.option.depth_units, DEPTH_UNIT_M)
@@ -66,10 +70,14 @@ def recording(tmp_path_factory):
     depth_profile.register_extrinsics_to(colour_profile, extrinsics)
     device.create_matcher(rs.matchers.default)
     recorder = rs.recorder(str(path), device)
-    depth_sensor.open(depth_profile)
-    colour_sensor.open(colour_profile)
-    depth_sensor.start(lambda f: None)
-    colour_sensor.start(lambda f: None)
+    if one:
+        depth_sensor.open([depth_profile, colour_profile])
+        depth_sensor.start(lambda f: None)
+    else:
+        depth_sensor.open(depth_profile)
+        colour_sensor.open(colour_profile)
+        depth_sensor.start(lambda f: None)
+        colour_sensor.start(lambda f: None)
     for k in range(N):
         colour = np.zeros((H, W, 3), np.uint8)
         colour[..., 0], colour[..., 1] = k, np.arange(W, dtype=np.uint8)
@@ -81,7 +89,7 @@ def recording(tmp_path_factory):
             frame.profile = profile.as_video_stream_profile()
             sensor.on_video_frame(frame)
         time.sleep(1.0 / FPS)
-    for sensor in (depth_sensor, colour_sensor):
+    for sensor in (depth_sensor,) if one else (depth_sensor, colour_sensor):
         sensor.stop()
         sensor.close()
     del recorder  # closes the file

@@ -357,3 +357,22 @@ def test_recent_keeps_the_messages_taken_or_skipped_not_the_one_waiting():
         assert plain.recent() == []
     with pytest.raises(ValueError, match="keep_recent"):
         Subscriber(ANY_PORT.replace("*", "1"), keep_recent=-1)
+
+
+def test_a_publisher_refuses_a_message_its_subscribers_would_drop_and_too_frequent_heartbeats():
+    from ipc.codec import ProtocolError
+
+    limits = Limits(max_message_bytes=2**16, max_array_bytes=2**16)
+    with Publisher(ANY_PORT, source="t", limits=limits) as pub, Subscriber(pub.endpoint, limits=limits) as sub:
+        def frame(side):
+            camera = m.CameraInfo(side, side, np.array([[side, 0, side / 2], [0, side, side / 2], [0, 0, 1.0]]))
+            return m.RGBDFrame(rgb=np.zeros((side, side, 3), np.uint8), depth_m=np.ones((side, side), np.float32),
+                               camera=camera, seq=side)
+
+        small, big = frame(8), frame(128)
+        with pytest.raises(ProtocolError, match=r"RGBDFrame message of \d+ bytes exceeds the 65536-byte message "
+                                                r"limit subscribers keep; not sent"):
+            pub.publish(big)  # sent, it would have cut the subscriber off without a word
+        assert publish_until_received(pub, sub, small).seq == small.seq and sub.reconnects == 0
+    with pytest.raises(ValueError, match=r"heartbeat period: expected at least 0\.05 s .*got 0\.001 s"):
+        Publisher(ANY_PORT, source="t", heartbeat_period_s=0.001)

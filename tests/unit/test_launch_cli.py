@@ -171,3 +171,24 @@ def test_the_perception_service_refuses_to_reinitialise_after_lost_frames_withou
         perception_service.main(["--no-auto-init", "--reinit-after-lost", "3"])
     assert stop.value.code == 2
     assert "--reinit-after-lost re-initialises by itself, which --no-auto-init rules out" in capsys.readouterr().err
+
+
+def test_an_endpoint_no_other_process_can_reach_is_refused_on_the_command_line(capsys):
+    from launch_scripts import perception_service, publish_frames
+
+    for parser, argv in ((publish_frames.build_parser(), ["sequence", "seq", "--endpoint", "inproc://frames"]),
+                         (perception_service.build_parser(), ["--frames", "inproc://frames"])):
+        with pytest.raises(SystemExit) as e:
+            parser.parse_args(argv)
+        assert e.value.code == 2
+        err = capsys.readouterr().err.strip()
+        assert "inproc://frames: an inproc:// endpoint is reached only from inside this process; use tcp:// or ipc://" \
+            in err and len(err.splitlines()) == 1
+
+
+def test_a_simulated_camera_too_large_to_render_is_refused_in_one_line(capsys):
+    from launch_scripts import publish_frames
+
+    assert publish_frames.main(["sim", "--width", "100000", "--height", "100000", "--max-frames", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == "error: camera size: expected at most 4096x4096 pixels, got 100000x100000"

@@ -83,13 +83,13 @@ def test_without_groundtruth(tmp_path):
     assert open_sequence(tmp_path / "seq").groundtruth is None
 
 
-def test_intrinsics_are_column_major_with_default_scale(tmp_path):
+def test_intrinsics_are_column_major_and_say_when_they_give_no_scale(tmp_path):
     path = tmp_path / "camera_intrinsic.json"
     path.write_text(json.dumps({"width": 640, "height": 480,
                                 "intrinsic_matrix": [525.0, 0, 0, 0, 526.0, 0, 319.5, 239.5, 1]}))
     camera, scale = read_intrinsics(path)
     np.testing.assert_allclose(camera.K, [[525, 0, 319.5], [0, 526, 239.5], [0, 0, 1]])
-    assert scale == 5000.0
+    assert scale is None
     write_intrinsics(path, camera, 1000.0)
     again, scale = read_intrinsics(path)
     np.testing.assert_allclose(again.K, camera.K)
@@ -219,3 +219,43 @@ def test_an_aborted_recording_is_not_a_sequence(tmp_path):
         raise RuntimeError("simulation failed")
     with pytest.raises(SequenceError, match="rgb.txt: file not found"):
         open_sequence(tmp_path / "seq")
+
+
+def test_a_sequence_without_depth_scale_is_read_at_tums_scale_with_a_warning(tmp_path, caplog):
+    _write(tmp_path / "seq", depth_scale=1000.0)  # millimetres
+    data = json.loads((tmp_path / "seq" / "camera_intrinsic.json").read_text())
+    del data["depth_scale"]
+    (tmp_path / "seq" / "camera_intrinsic.json").write_text(json.dumps(data))
+    with caplog.at_level("WARNING", logger="perception.sequence"):
+        seq = open_sequence(tmp_path / "seq")
+    assert seq.depth_scale == 5000.0
+    raw = cv2.imread(str(seq.depth_files[0]), cv2.IMREAD_UNCHANGED)
+    median_mm = float(np.median(raw[raw > 0]))
+    warning = " ".join(r.getMessage() for r in caplog.records)
+    assert "has no depth_scale: taking TUM's 5000 units per metre" in warning
+    assert f"{median_mm / 5000:.2f} m; {median_mm / 1000:.2f} m in millimetres" in warning
+
+
+def test_lists_and_intrinsics_written_with_a_byte_order_mark_are_read(tmp_path):
+    _write(tmp_path / "seq")
+    for name in ("rgb.txt", "depth.txt", "camera_intrinsic.json"):
+        path = tmp_path / "seq" / name
+        path.write_text(path.read_text(), encoding="utf-8-sig")  # as Windows editors save
+    assert len(open_sequence(tmp_path / "seq")) == 3
+
+
+def test_timestamps_too_far_apart_to_be_seconds_are_said(tmp_path, caplog):
+    _write(tmp_path / "seq")
+    for name in ("rgb.txt", "depth.txt"):  # 100.0, 100.033 ... read as milliseconds since some epoch
+        path = tmp_path / "seq" / name
+        lines = [ln if ln.startswith("#") else f"{1000 * float(ln.split()[0]):.3f} {ln.split()[1]}"
+                 for ln in path.read_text().splitlines()]
+        path.write_text("\n".join(lines) + "\n")
+    with caplog.at_level("WARNING", logger="perception.sequence"):
+        assert len(open_sequence(tmp_path / "seq")) == 3
+    assert "frames 33.3 s apart (median); TUM timestamps are seconds: are these milliseconds?" in caplog.text
+    caplog.clear()
+    _write(tmp_path / "ok")
+    with caplog.at_level("WARNING", logger="perception.sequence"):
+        open_sequence(tmp_path / "ok")
+    assert not caplog.records

@@ -166,6 +166,17 @@ def test_sequence_source_replays_the_folder_with_its_depth_scale(tmp_path):
         SequenceSource(tmp_path / "missing")
 
 
+def test_a_sequence_frame_that_cannot_be_read_is_skipped_and_the_stream_goes_on(tmp_path, caplog):
+    with SequenceWriter(tmp_path / "seq", CAM, depth_scale=1000.0) as writer:
+        for i in range(4):
+            writer.write(frame(i, 0.5 + i / 30))
+    broken = sorted((tmp_path / "seq" / "depth").iterdir())[1]
+    broken.write_bytes(broken.read_bytes()[:40])  # truncated, as a copy cut short leaves it
+    with SequenceSource(tmp_path / "seq") as src, caplog.at_level("WARNING"):
+        assert [f.seq for f in src.frames()] == [0, 2, 3] and src.skipped == 1
+    assert f"frame 1 skipped: {broken}: unreadable image" in caplog.text
+
+
 @pytest.mark.slow
 def test_scene_source_renders_frames_at_30_hz_and_replays_a_pass():
     pytest.importorskip("pybullet")
@@ -206,12 +217,25 @@ def test_sim_source_sends_the_known_occluder_mask_when_asked():
 
 
 def test_a_missing_sdk_names_the_extra_to_install(monkeypatch):
-    monkeypatch.setitem(sys.modules, "pyrealsense2", None)  # import raises ImportError
-    with pytest.raises(SourceError, match=r"RealSense source needs the Python module 'pyrealsense2'.*clothkit\[realsense\]"):
+    monkeypatch.setitem(sys.modules, "pyrealsense2", None)  # import raises ModuleNotFoundError
+    with pytest.raises(SourceError, match=r"RealSense source needs the Python module 'pyrealsense2', which is not "
+                                          r"installed; .*pip install -e '\.\[realsense\]'"):
         RealSenseSource()
     monkeypatch.setitem(sys.modules, "pyk4a", None)
-    with pytest.raises(SourceError, match=r"clothkit\[kinect\]"):
+    with pytest.raises(SourceError, match=r"pip install -e '\.\[kinect\]'"):
         KinectSource()
+
+
+def test_an_sdk_that_is_installed_but_does_not_load_is_not_sent_to_pip(monkeypatch):
+    import importlib
+
+    def no_libusb(name, *args):
+        raise ImportError("libusb-1.0.so.0: cannot open shared object file: No such file or directory")
+
+    monkeypatch.setattr(importlib, "import_module", no_libusb)
+    with pytest.raises(SourceError, match=r"'pyrealsense2', which is installed but does not load \(libusb-1\.0\.so\.0") as e:
+        RealSenseSource()
+    assert "pip install" not in str(e.value)
 
 
 class FakeRealSense:
@@ -224,7 +248,7 @@ class FakeRealSense:
     def __init__(self, colour_format="rgb8", model="brown_conrady", coeffs=(0.1, -0.05, 0.001, 0.002, 0.01)):
         rs = types.ModuleType("pyrealsense2")
         rs.stream = SimpleNamespace(depth="stream.depth", color="stream.color")
-        rs.format = SimpleNamespace(z16="format.z16", rgb8="format.rgb8", bgr8="format.bgr8")
+        rs.format = SimpleNamespace(**{n: f"format.{n}" for n in ("z16", "rgb8", "bgr8", "rgba8", "bgra8", "yuyv", "y16")})
         rs.distortion = SimpleNamespace(**{n: f"distortion.{n}" for n in (
             "none", "brown_conrady", "modified_brown_conrady", "inverse_brown_conrady", "ftheta", "kannala_brandt4")})
         fake = self
@@ -318,6 +342,34 @@ def test_realsense_frames_are_aligned_scaled_and_carry_the_colour_intrinsics(mon
     assert f.timestamp_s == pytest.approx(1234.5675) and f.seq == 42
 
 
+def test_realsense_colour_formats_a_recording_may_hold_become_rgb():
+    from perception.sources._realsense import _rgb_of
+
+    rs = FakeRealSense().rs
+    rgb = np.random.default_rng(1).integers(0, 256, (4, 6, 3), dtype=np.uint8)
+    bgra = np.concatenate([rgb[:, :, ::-1], np.full((4, 6, 1), 255, np.uint8)], axis=2)
+    np.testing.assert_array_equal(_rgb_of(bgra, rs.format.bgra8, rs, (4, 6)), rgb)
+    np.testing.assert_array_equal(_rgb_of(bgra[:, :, [2, 1, 0, 3]], rs.format.rgba8, rs, (4, 6)), rgb)
+    yuyv = np.full((4, 6, 2), 128, np.uint8)  # Y, U and V all 128: mid grey
+    yuyv[:, 0::2, 1] = 90  # U under 128 on every other byte pair: a yellower grey, R and G over B
+    for data in (yuyv, yuyv.view(np.uint16).reshape(4, 6)):  # as bytes, and as the SDK's one uint16 a pixel
+        out = _rgb_of(data, rs.format.yuyv, rs, (4, 6)).astype(int)
+        assert out.shape == (4, 6, 3) and np.all(out[..., 0] > out[..., 2] + 30) and np.all(out[..., 1] > out[..., 2])
+    with pytest.raises(SourceError, match="colour format format.y16 is not supported"):
+        _rgb_of(rgb, rs.format.y16, rs, (4, 6))
+    with pytest.raises(SourceError, match=r"expected a \(4, 6, 4\) uint8 colour image in format.bgra8, got \(4, 6, 3\)"):
+        _rgb_of(rgb, rs.format.bgra8, rs, (4, 6))
+
+
+def test_a_realsense_recording_refuses_the_device_options_before_the_sdk_is_needed(monkeypatch, tmp_path):
+    monkeypatch.setitem(sys.modules, "pyrealsense2", None)  # no SDK: these fail on the arguments alone
+    with pytest.raises(ValueError, match=r"a recording has its own size, frame rate and device; got width=1280, "
+                                         r"serial='123' with recording='.*a\.db3'"):
+        RealSenseSource(1280, serial="123", recording=tmp_path / "a.db3")
+    with pytest.raises(SourceError, match=r"pip install -e '\.\[realsense\]'"):  # options fine: now the SDK
+        RealSenseSource(recording=tmp_path / "a.db3")
+
+
 def test_realsense_bgr_is_turned_to_rgb_and_zero_or_foreign_distortion(monkeypatch):
     fake = FakeRealSense(colour_format="bgr8", model="inverse_brown_conrady", coeffs=(0.0,) * 5)
     monkeypatch.setitem(sys.modules, "pyrealsense2", fake.rs)
@@ -358,7 +410,7 @@ class FakeKinect:
         k4a.FPS = SimpleNamespace(FPS_5="FPS_5", FPS_15="FPS_15", FPS_30="FPS_30")
         k4a.ImageFormat = SimpleNamespace(COLOR_BGRA32="COLOR_BGRA32", COLOR_MJPG="COLOR_MJPG")
         k4a.Config = lambda **kw: SimpleNamespace(**kw)
-        self.k4a, self.config, self.stopped, self.timeout = k4a, None, False, False
+        self.k4a, self.config, self.stopped, self.timeout, self.unplugged = k4a, None, False, False, False
         self.K = {CalibrationType.COLOR: [[605.0, 0, 639.5], [0, 604.5, 365.2], [0, 0, 1]],
                   CalibrationType.DEPTH: [[504.0, 0, 320.0], [0, 504.0, 288.0], [0, 0, 1]]}
         self.D = {CalibrationType.COLOR: [0.5, -2.7, 0.0007, -0.0002, 1.5, 0.4, -2.5, 1.4],
@@ -406,6 +458,8 @@ class FakeKinect:
                 fake.stopped = True
 
             def get_capture(self, timeout=-1):
+                if fake.unplugged:
+                    raise K4AException("K4A_WAIT_RESULT_FAILED")  # what pyk4a raises for a device that failed
                 if fake.timeout or not fake.captures:
                     raise K4ATimeoutException()
                 return fake.captures.pop(0)
@@ -419,6 +473,9 @@ def test_kinect_frames_are_rgb_in_metres_with_the_colour_calibration(monkeypatch
     with KinectSource("720p", "nfov_unbinned", 30, device_id=1) as src:
         f = next(src.frames())  # the capture without colour is skipped
         with pytest.raises(SourceError, match="Kinect: no capture within 5000 ms"):
+            next(src.frames())
+        fake.unplugged = True
+        with pytest.raises(SourceError, match=r"Kinect: the device stopped delivering captures \(K4A_WAIT_RESULT_FAILED\)"):
             next(src.frames())
     cfg = fake.config
     assert (cfg.color_format, cfg.color_resolution, cfg.depth_mode, cfg.camera_fps, cfg.synchronized_images_only) == \
@@ -452,7 +509,7 @@ def test_a_kinect_recording_is_checked_before_the_sdk_is_needed(monkeypatch, tmp
         KinectSource("1080p", fps=15, recording=tmp_path / "a.mkv")
     with pytest.raises(ValueError, match="got device_id=1 with"):
         KinectSource(device_id=1, recording=tmp_path / "a.mkv")
-    with pytest.raises(SourceError, match=r"clothkit\[kinect\]"):  # a good file: now the SDK is needed
+    with pytest.raises(SourceError, match=r"pip install -e '\.\[kinect\]'"):  # a good file: now the SDK is needed
         KinectSource(recording=tmp_path / "a.mkv")
 
 

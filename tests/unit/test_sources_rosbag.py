@@ -1,5 +1,6 @@
 """RosbagSource on small ROS 1 and ROS 2 bags written here with the rosbags library."""
 
+import cv2
 import numpy as np
 import pytest
 
@@ -50,13 +51,26 @@ def camera_info(store, ros1):
                 roi=Roi(x_offset=0, y_offset=0, height=0, width=0, do_rectify=False), **arrays)
 
 
-def write_bag(path, ros1, colour_encoding="bgr8", depth_encoding="16UC1", n=3):
+def compressed(store, stamp_s, data, ros1):
+    """A sensor_msgs/CompressedImage holding ``data`` (bytes) as PNG colour."""
+    Time, Header, Compressed = (store.types[n] for n in ("builtin_interfaces/msg/Time", "std_msgs/msg/Header",
+                                                         "sensor_msgs/msg/CompressedImage"))
+    sec = int(stamp_s)
+    stamp = Time(sec=sec, nanosec=round((stamp_s - sec) * 1e9))
+    header = Header(seq=0, stamp=stamp, frame_id="cam") if ros1 else Header(stamp=stamp, frame_id="cam")
+    return Compressed(header=header, format="png", data=np.frombuffer(data, np.uint8))
+
+
+def write_bag(path, ros1, colour_encoding="bgr8", depth_encoding="16UC1", n=3, corrupt=()):
+    """A bag of ``n`` colour/depth pairs; ``colour_encoding`` "png" writes the colour as
+    CompressedImage, with the frames in ``corrupt`` holding bytes that do not decode."""
     store = get_typestore(Stores.ROS1_NOETIC if ros1 else Stores.ROS2_HUMBLE)
     writer = Writer1(path) if ros1 else Writer2(path, version=9)
     serialize = store.serialize_ros1 if ros1 else store.serialize_cdr
+    rgb_type = "sensor_msgs/msg/CompressedImage" if colour_encoding == "png" else "sensor_msgs/msg/Image"
     with writer:
         conns = {t: writer.add_connection(t, m, typestore=store) for t, m in (
-            ("/rgb", "sensor_msgs/msg/Image"), ("/depth", "sensor_msgs/msg/Image"), ("/info", "sensor_msgs/msg/CameraInfo"))}
+            ("/rgb", rgb_type), ("/depth", "sensor_msgs/msg/Image"), ("/info", "sensor_msgs/msg/CameraInfo"))}
         writer.write(conns["/info"], 1, serialize(camera_info(store, ros1), "sensor_msgs/msg/CameraInfo"))
         for k in range(n):
             t = 10.0 + 0.1 * k
@@ -71,8 +85,12 @@ def write_bag(path, ros1, colour_encoding="bgr8", depth_encoding="16UC1", n=3):
             # Depth is stamped 5 ms after colour and written first: pairing must use the stamps.
             depth_msg = image(store, t + 0.005, d, depth_encoding, W * itemsize + 4, ros1)
             writer.write(conns["/depth"], 100 + 10 * k, serialize(depth_msg, "sensor_msgs/msg/Image"))
-            rgb_msg = image(store, t, rgb, colour_encoding, W * 3, ros1)
-            writer.write(conns["/rgb"], 101 + 10 * k, serialize(rgb_msg, "sensor_msgs/msg/Image"))
+            if colour_encoding == "png":
+                data = b"not a png" if k in corrupt else cv2.imencode(".png", colour(k)[:, :, ::-1])[1].tobytes()
+                rgb_msg = compressed(store, t, data, ros1)
+            else:
+                rgb_msg = image(store, t, rgb, colour_encoding, W * 3, ros1)
+            writer.write(conns["/rgb"], 101 + 10 * k, serialize(rgb_msg, rgb_type))
     return path
 
 
@@ -111,3 +129,24 @@ def test_bad_topics_and_encodings_are_named(tmp_path):
         RosbagSource(path, "/rgb", "/rgb", "/info")
     with pytest.raises(SourceError, match="depth encoding '8UC1' is not supported"):
         RosbagSource(write_bag(tmp_path / "c", False, depth_encoding="8UC1"), "/rgb", "/depth", "/info")
+
+
+@pytest.mark.parametrize("ros1", [False, True], ids=["ros2", "ros1"])
+def test_compressed_colour_is_decoded_and_a_corrupt_image_drops_only_its_frame(tmp_path, ros1):
+    path = write_bag(tmp_path / ("b.bag" if ros1 else "b"), ros1, colour_encoding="png", n=4, corrupt=(1,))
+    src = RosbagSource(path, "/rgb", "/depth", "/info")
+    frames = list(src.frames())
+    assert [f.seq for f in frames] == [0, 2, 3] and src.skipped == 1  # the stream goes on past the bad image
+    for f in frames:
+        np.testing.assert_array_equal(f.rgb, colour(f.seq))  # PNG colour decoded to RGB
+        np.testing.assert_allclose(f.depth_m, depth_m(f.seq), atol=1e-6)
+
+
+def test_a_topic_of_another_message_type_is_named(tmp_path):
+    path = write_bag(tmp_path / "b", False, colour_encoding="png")
+    with pytest.raises(SourceError, match="the depth topic '/rgb' carries sensor_msgs/msg/CompressedImage; "
+                                          "expected sensor_msgs/msg/Image"):
+        RosbagSource(path, "/depth", "/rgb", "/info")
+    with pytest.raises(SourceError, match="the info topic '/depth' carries sensor_msgs/msg/Image; "
+                                          "expected sensor_msgs/msg/CameraInfo"):
+        RosbagSource(path, "/rgb", "/depth", "/depth")
