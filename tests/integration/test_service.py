@@ -469,7 +469,7 @@ def test_viewer_records_frames_and_meshes(frames, tmp_path):
 
 def test_viewer_without_its_extra_names_it(monkeypatch):
     monkeypatch.setitem(sys.modules, "rerun", None)
-    with pytest.raises(RuntimeError, match=r"live viewer needs the Python module 'rerun'.*clothkit\[viewer\]"):
+    with pytest.raises(RuntimeError, match=r"live viewer needs the Python module 'rerun'.*pip install -e '\.\[viewer\]'"):
         RerunViewer()
 
 
