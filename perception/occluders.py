@@ -33,6 +33,22 @@ pixels known to be the empty workspace (they do not differ from the ``background
 on the ``support`` plane, ``perception.support``) are never taken for an object found by
 its colour.
 
+An object too near the camera for its sensor to measure (a hand or an arm passing a few
+tens of centimetres in front of the lens, inside a depth camera's minimum range) has no
+depth at all, so no step. Where the colour model tells the cloth from its surroundings, a
+patch over the predicted mesh that has no depth, is not of the cloth's hue, lies mostly
+where the cloth was in the last few frames, is wider than a strip the cloth's own motion
+bares along its edge (``BLIND_OPEN_PX``) and has around it cloth that agrees with the
+prediction in depth (``BLIND_AGREE``) is taken for such an object, with its part beyond the
+predicted mesh, where it hides the cloth's outline. The cloth's own pixels without depth
+(seen at a grazing angle, along a crease) are of its hue, and are left alone. This is done
+only where the sensor measured what surrounds the cloth when the tracker first saw it
+(``MEASURED_SURROUNDINGS``): in front of a background beyond the sensor's range, where the
+cloth moves away (a hanging towel's top edge sagging) the background shows through without
+depth and not of the cloth's hue either, and cannot be told from an object in front. A
+cloth's other side of another hue, turned towards the camera at a grazing angle, is taken
+for such an object as it is for one close in front.
+
 What it misses: an object whose rim slopes down into the cloth (a rounded hand lying flat
 on it, fingertips) meets the cloth without a step and is taken for cloth, as before; so is
 anything nearer than the predicted mesh by less than ``near_m`` where colour cannot tell (a
@@ -50,6 +66,8 @@ Arrays: vertices (N, 3) float metres in the camera frame; depth (H, W) float32 m
 """
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -93,6 +111,36 @@ MIN_UNLIKE_VERTICES = 2
 #: Below this probability of being the object by its hue (``ColourModel.chroma_probability``) a
 #: pixel is not of the object's colour: the even odds the colour segmentation draws its line at.
 UNLIKE_P = 0.5
+#: Vertices, at least, of the predicted mesh on pixels without depth and not of the object's
+#: hue before an object too near to measure is looked for.
+MIN_BLIND_VERTICES = 3
+#: Such an object is wider than this (image pixels) everywhere: opening its patch by it drops
+#: the strips along the predicted mesh's edge that a cloth moving a few pixels bares (a
+#: background beyond the sensor's range has no depth either).
+BLIND_OPEN_PX = 12
+#: Objects too near to measure are looked for only in front of surroundings that the sensor
+#: measures: this share of the pixels within ``SURROUNDINGS_RING_PX`` of the object, when the
+#: tracker first saw it (``measured_around``). In front of a background beyond the sensor's
+#: range, a patch without depth where the mesh is predicted is as likely that background where
+#: the cloth moved away (a hanging towel's top edge sagging) as something in front of it.
+MEASURED_SURROUNDINGS = 0.9
+SURROUNDINGS_RING_PX = 40
+#: Share of such a patch that was the object in the last few frames, or the object in front
+#: found in the frame before: it came in front of the cloth.
+BLIND_CAME = 0.5
+#: Share of the cloth around such a patch (within ``FAR_RING_PX``, where the mesh is predicted
+#: and depth is measured) that must agree with the prediction: the cloth stayed where it was
+#: and something came in front of it. Where the cloth itself moved away, baring what lies
+#: behind, the cloth around the bare patch has moved too.
+BLIND_AGREE = 0.5
+
+
+def measured_around(depth_m: np.ndarray, mask: np.ndarray, ring_px: int = SURROUNDINGS_RING_PX) -> float:
+    """Share of the pixels within ``ring_px`` around the object ``mask`` (H, W) bool that have
+    measured depth in ``depth_m`` (H, W): near 1 where the cloth hangs or lies in front of
+    surfaces the sensor measures, low in front of a background beyond its range."""
+    ring = cv2.dilate(np.asarray(mask, np.uint8), disc(ring_px)).view(bool) & ~np.asarray(mask, bool)
+    return float(valid_depth(depth_m[ring]).mean()) if ring.any() else 0.0
 
 
 def _predicted_depth(vertices: np.ndarray, faces: np.ndarray, uv: np.ndarray, shape) -> np.ndarray:
@@ -125,7 +173,8 @@ def _steps_all_round(patches: np.ndarray, n: int, depth: np.ndarray, cloth: np.n
 def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndarray, K: np.ndarray,
                        near_m: float, known: np.ndarray | None = None, before: np.ndarray | None = None,
                        min_px: int = 40, rgb: np.ndarray | None = None, colour: ColourModel | None = None,
-                       workspace: np.ndarray | None = None, support: SupportPlane | None = None) -> np.ndarray | None:
+                       workspace: np.ndarray | None = None, support: SupportPlane | None = None,
+                       object_before: tuple = ()) -> np.ndarray | None:
     """(H, W) bool: objects in front of the cloth that the predicted mesh ``vertices``
     (N, 3), ``faces`` (M, 3) does not explain (see the module docstring); None when there is
     none.
@@ -146,6 +195,9 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
     workspace : (H, W) bool, pixels known to show the empty workspace, or None
     support : the plane the object rests on or stands in front of, or None
     Neither ``workspace`` nor ``support`` pixels are taken for an object found by its colour.
+    object_before : (H, W) bool masks, the object as segmented in the last few frames; with
+        them, and ``rgb`` and an informative ``colour``, an object too near the camera to be
+        measured is looked for where the object was (``_too_near``)
     """
     h, w = depth_m.shape
     uv = project(vertices, K)
@@ -156,60 +208,117 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
     # colour covers some at pixels not of the object's hue.
     covered = measured & (d < vertices[:, 2] - near_m)
     by_colour = rgb is not None and colour is not None and colour.informative
+    blind = None  # vertices without depth, of other hues: under an object too near to measure?
+    if by_colour and len(object_before):
+        blind = inside & ~measured
+        blind[blind] = colour.chroma_probability_at(rgb[rows[blind], cols[blind]]) < UNLIKE_P
+        blind = blind if np.count_nonzero(blind) >= MIN_BLIND_VERTICES else None
     if by_colour:
         rim = _rim_vertices(vertices, faces, d, measured, rgb[rows, cols], colour,
                             None if before is None else before[rows, cols] & inside)
         by_colour = np.count_nonzero(rim) >= MIN_UNLIKE_VERTICES
         if by_colour:  # the object is looked for around its rim (its pixels reach on beyond)
             covered |= rim
-    if np.count_nonzero(covered) < 2:
-        return None
-    # The object lies within a face of the vertices it covers, and the cloth it is judged
-    # against within FAR_RING_PX beyond: work in that box, on every STEP_PX-th pixel.
-    edges = np.linalg.norm(uv[faces[:, 0]] - uv[faces[:, 1]], axis=1)
-    edges = edges[np.isfinite(edges)]  # a vertex behind the camera projects nowhere
-    if not len(edges):
-        return None
-    pad = int(FAR_RING_PX + 2 * min(float(np.median(edges)), max(h, w))) + STEP_PX
-    y0 = max(0, int(rows[covered].min()) - pad) // STEP_PX * STEP_PX
-    x0 = max(0, int(cols[covered].min()) - pad) // STEP_PX * STEP_PX
-    y1, x1 = min(h, int(rows[covered].max()) + 1 + pad), min(w, int(cols[covered].max()) + 1 + pad)
-    depth = np.asarray(depth_m[y0:y1:STEP_PX, x0:x1:STEP_PX], np.float64)
-    valid = valid_depth(depth)
-    depth = np.where(valid, depth, 0.0)
-    uv_box = (uv - [x0, y0]) / STEP_PX
-    corners = uv_box[faces]
-    near_box = np.all(np.isfinite(corners).reshape(len(faces), -1), axis=1)
-    near_box &= np.all(corners.max(axis=1) >= -1, axis=1) & np.all(corners.min(axis=1) <= depth.shape[::-1], axis=1)
-    z = _predicted_depth(vertices, faces[near_box], uv_box, depth.shape)
-    # The mesh's rim vertices lie on its drawn edge, which sparse pixels may miss: the
-    # prediction is carried a pixel or two beyond it.
-    drawn = np.isfinite(z)
-    z = np.where(drawn, z, cv2.dilate(np.where(drawn, z, 0.0), disc(2)))
-    on_mesh = valid & (z > 0)
-    if known is not None:
-        on_mesh &= ~known[y0:y1:STEP_PX, x0:x1:STEP_PX]
-    offset = np.where(on_mesh, depth - z, 0.0)
-    was = None if before is None else before[y0:y1:STEP_PX, x0:x1:STEP_PX]
-    unlike = None
-    if by_colour:
-        candidate = valid.copy()  # seeds lie on the mesh (offset 0 elsewhere); their objects anywhere
+    found = None
+    grid = _Grid.around(covered, depth_m, vertices, faces, uv, cols, rows, known, before) \
+        if np.count_nonzero(covered) >= 2 else None
+    if grid is not None:
+        unlike = None
+        if by_colour:
+            candidate = grid.valid.copy()  # seeds lie on the mesh (offset 0 elsewhere); their objects anywhere
+            if known is not None:
+                candidate &= ~grid.cut(known)
+            if workspace is not None:
+                candidate &= ~grid.cut(workspace)
+            if support is not None:
+                candidate &= ~support.on_plane(grid.depth, K, grid.x0, grid.y0, STEP_PX)
+            unlike = _unlike(candidate, grid.z > 0, grid.offset, grid.was, grid.cut(rgb), grid.depth, colour, min_px)
+        stepped = _stepped_patches(grid.on_mesh, grid.offset, grid.depth, grid.was, near_m, min_px)
+        found = grid.full(stepped if unlike is None else (unlike if stepped is None else stepped | unlike))
+    grid = None if blind is None else _Grid.around(blind, depth_m, vertices, faces, uv, cols, rows, known, before)
+    if grid is not None:
+        excluded = np.zeros(grid.depth.shape, bool)
+        for mask in (known, workspace):
+            if mask is not None:
+                excluded |= grid.cut(mask)
+        came = np.logical_or.reduce([grid.cut(m) for m in object_before])
+        if grid.was is not None:
+            came = came | grid.was
+        too_near = grid.full(_too_near(~grid.valid & ~excluded, grid.z > 0, came,
+                                       grid.on_mesh & (np.abs(grid.offset) <= near_m), grid.on_mesh, grid.cut(rgb),
+                                       colour, min_px))
+        found = too_near if found is None else (found if too_near is None else found | too_near)
+    return found
+
+
+@dataclass
+class _Grid:
+    """The box an object in front is looked for in, read on every ``STEP_PX``-th pixel: where
+    it covers vertices, padded by a face and by ``FAR_RING_PX``, the cloth it is judged against.
+
+    shape : the image's (H, W); y0, y1, x0, x1 : the box in it (y0, x0 multiples of
+    ``STEP_PX``); depth : measured
+    depth, 0 where none; valid : where measured; z : the predicted mesh's depth, 0 off it;
+    on_mesh : measured where the mesh is predicted, less the known occluders; offset : depth
+    less z there, 0 elsewhere; was : the object in front found in the frame before, or None.
+    """
+
+    shape: tuple[int, int]
+    y0: int
+    y1: int
+    x0: int
+    x1: int
+    depth: np.ndarray
+    valid: np.ndarray
+    z: np.ndarray
+    on_mesh: np.ndarray
+    offset: np.ndarray
+    was: np.ndarray | None
+
+    @classmethod
+    def around(cls, covered, depth_m, vertices, faces, uv, cols, rows, known, before) -> _Grid | None:
+        """The grid around the vertices ``covered`` (N,) bool; None when no face projects."""
+        h, w = depth_m.shape
+        edges = np.linalg.norm(uv[faces[:, 0]] - uv[faces[:, 1]], axis=1)
+        edges = edges[np.isfinite(edges)]  # a vertex behind the camera projects nowhere
+        if not len(edges):
+            return None
+        pad = int(FAR_RING_PX + 2 * min(float(np.median(edges)), max(h, w))) + STEP_PX
+        y0 = max(0, int(rows[covered].min()) - pad) // STEP_PX * STEP_PX
+        x0 = max(0, int(cols[covered].min()) - pad) // STEP_PX * STEP_PX
+        y1, x1 = min(h, int(rows[covered].max()) + 1 + pad), min(w, int(cols[covered].max()) + 1 + pad)
+        depth = np.asarray(depth_m[y0:y1:STEP_PX, x0:x1:STEP_PX], np.float64)
+        valid = valid_depth(depth)
+        depth = np.where(valid, depth, 0.0)
+        uv_box = (uv - [x0, y0]) / STEP_PX
+        corners = uv_box[faces]
+        near_box = np.all(np.isfinite(corners).reshape(len(faces), -1), axis=1)
+        near_box &= np.all(corners.max(axis=1) >= -1, axis=1) & np.all(corners.min(axis=1) <= depth.shape[::-1], axis=1)
+        z = _predicted_depth(vertices, faces[near_box], uv_box, depth.shape)
+        # The mesh's rim vertices lie on its drawn edge, which sparse pixels may miss: the
+        # prediction is carried a pixel or two beyond it.
+        drawn = np.isfinite(z)
+        z = np.where(drawn, z, cv2.dilate(np.where(drawn, z, 0.0), disc(2)))
+        on_mesh = valid & (z > 0)
         if known is not None:
-            candidate &= ~known[y0:y1:STEP_PX, x0:x1:STEP_PX]
-        if workspace is not None:
-            candidate &= ~workspace[y0:y1:STEP_PX, x0:x1:STEP_PX]
-        if support is not None:
-            candidate &= ~support.on_plane(depth, K, x0, y0, STEP_PX)
-        unlike = _unlike(candidate, z > 0, offset, was, rgb[y0:y1:STEP_PX, x0:x1:STEP_PX], depth, colour, min_px)
-    stepped = _stepped_patches(on_mesh, offset, depth, was, near_m, min_px)
-    front = stepped if unlike is None else (unlike if stepped is None else stepped | unlike)
-    if front is None or not front.any():
-        return None
-    # Grown by a pixel or two: the object's own edge pixels, mixed with the cloth behind.
-    found = cv2.dilate(front.view(np.uint8), np.ones((3, 3), np.uint8))
-    out = np.zeros((h, w), bool)
-    out[y0:y1, x0:x1] = blow_up(found, STEP_PX, (y1 - y0, x1 - x0))
-    return out
+            on_mesh &= ~known[y0:y1:STEP_PX, x0:x1:STEP_PX]
+        offset = np.where(on_mesh, depth - z, 0.0)
+        was = None if before is None else before[y0:y1:STEP_PX, x0:x1:STEP_PX]
+        return cls((h, w), y0, y1, x0, x1, depth, valid, z, on_mesh, offset, was)
+
+    def cut(self, image: np.ndarray) -> np.ndarray:
+        """``image`` (H, W, ...) read on the grid."""
+        return image[self.y0:self.y1:STEP_PX, self.x0:self.x1:STEP_PX]
+
+    def full(self, front: np.ndarray | None) -> np.ndarray | None:
+        """(H, W) bool of ``front`` (the grid's shape) grown by a pixel or two (the object's own
+        edge pixels, mixed with the cloth behind); None when it is None or empty."""
+        if front is None or not front.any():
+            return None
+        found = cv2.dilate(front.view(np.uint8), np.ones((3, 3), np.uint8))
+        out = np.zeros(self.shape, bool)
+        out[self.y0:self.y1, self.x0:self.x1] = blow_up(found, STEP_PX, (self.y1 - self.y0, self.x1 - self.x0))
+        return out
 
 
 def _rim_vertices(vertices: np.ndarray, faces: np.ndarray, d: np.ndarray, measured: np.ndarray, rgb: np.ndarray,
@@ -284,6 +393,44 @@ def _unlike(candidate: np.ndarray, on_mesh: np.ndarray, offset: np.ndarray, was:
     keep &= np.bincount(region[~on_mesh], minlength=n) >= min_px / STEP_PX**2
     keep[0] = False
     return keep[region] if keep.any() else None
+
+
+def _too_near(unmeasured: np.ndarray, predicted: np.ndarray, came: np.ndarray, agrees: np.ndarray,
+              measured_on_mesh: np.ndarray, rgb: np.ndarray, colour: ColourModel, min_px: int) -> np.ndarray | None:
+    """(h, w) bool on the box's grid: objects too near the camera to be measured, or None.
+
+    unmeasured : pixels without depth that may be such an object (not a known occluder, not
+        the empty workspace); predicted : where the mesh is predicted; came : where such an
+        object may have come: the object's pixels in the last few frames, and the object in
+        front found in the frame before; agrees : pixels of the predicted mesh whose depth
+        agrees with it; measured_on_mesh : those with depth at all; rgb : (h, w, 3) the box's
+        colours.
+    Seeds are the patches of ``unmeasured`` not of the object's hue over the prediction, opened
+    by ``BLIND_OPEN_PX``, of ``min_px`` at least, ``BLIND_CAME`` of them where such an object
+    came (a background beyond the sensor's range never was the object, even where a mesh a
+    little too large is predicted over it), with ``BLIND_AGREE`` of the cloth around them
+    agreeing with the prediction (see the module docstring). Each takes in the pixels of other
+    hues without depth within ``FAR_RING_PX`` of it, as far as the outline's test looks for
+    what hides the object (not farther: the sensor's bands without depth along the cloth's
+    edges, or a background beyond its range, would carry it round the whole outline)."""
+    unlike = unmeasured & (colour.chroma_probability(np.ascontiguousarray(rgb)) < UNLIKE_P)
+    seeds = cv2.morphologyEx((unlike & predicted).view(np.uint8), cv2.MORPH_OPEN, disc(BLIND_OPEN_PX // (2 * STEP_PX)))
+    n, patches, stats, _ = cv2.connectedComponentsWithStats(seeds, connectivity=8)
+    area = stats[:, cv2.CC_STAT_AREA]
+    big = (area >= min_px / STEP_PX**2) & (np.bincount(patches[came], minlength=n) >= BLIND_CAME * area)
+    big[0] = False
+    if not big.any():
+        return None
+    radius = FAR_RING_PX // STEP_PX
+    around = cv2.dilate(np.where(big[patches], patches, 0).astype(np.float32), disc(radius)).astype(np.int32)
+    ring = (around > 0) & measured_on_mesh
+    seen = np.bincount(around[ring], minlength=n)
+    agree = np.bincount(around[ring & agrees], minlength=n)
+    front = big & (seen >= MIN_RING_PX / STEP_PX) & (agree >= BLIND_AGREE * np.maximum(seen, 1))
+    if not front.any():
+        return None
+    # Its part beyond the predicted mesh, as far as the outline's test looks (SHADOW_PX).
+    return cv2.dilate(front[patches].view(np.uint8), disc(radius)).view(bool) & unlike
 
 
 def _stepped_patches(on_mesh: np.ndarray, offset: np.ndarray, depth: np.ndarray, was: np.ndarray | None,

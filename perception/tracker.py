@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections import deque
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field, replace
 from functools import lru_cache
@@ -80,7 +81,7 @@ from perception.geometry import (
 from perception.initial_mesh import InitialisationError, mesh_from_mask, object_area_m2, place_mesh, spacing_for
 from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
-from perception.occluders import occluders_in_front
+from perception.occluders import MEASURED_SURROUNDINGS, measured_around, occluders_in_front
 from perception.raster import faces_mask
 from perception.registration import GlobalRegistration
 from perception.segmentation import (
@@ -109,6 +110,11 @@ FOLD_MARGIN_MIN_M = 0.005
 #: rejects, keeps its mesh for this many lost frames before it builds a new one on the object
 #: segmented again (a new mesh loses the material coordinates; a frame or two of bad data pass)
 KEEP_MESH_LOST_FRAMES = 3
+
+#: Frames whose segmented object an object too near the camera to measure must mostly cover to
+#: be taken for one (``perception.occluders``): a third of a second at 30 Hz, time for a hand
+#: to come in over the cloth, too short for the cloth to have swept the background beside it.
+OBJECT_BEFORE_FRAMES = 10
 
 #: An initialisation mask may cover at most this share of the frame: the object's outline and
 #: some of its surroundings must be in view (a mask of the whole frame, given by mistake, lays
@@ -361,6 +367,10 @@ class MeshTracker:
         self._visible = None  # (N,) bool, the vertices seen in the last frame
         self._laid_V = None
         self._unknown_occluder = None  # (H, W) bool, the objects in front found in the last frame
+        # (H, W) bool, the object as segmented in the last frames: an object too near the camera
+        # to be measured is looked for where the cloth was (perception.occluders)
+        self._object_before: deque = deque(maxlen=OBJECT_BEFORE_FRAMES)
+        self._surroundings_measured = False  # the sensor measured what surrounds the object when first seen
         self._occluded_before = None  # (H, W) bool, what was in front of the mesh in the last frame: known or found
         self._memory = FrameMemory()
         self.coarse_corrections = 0  # frames predicted otherwise than by constant velocity
@@ -529,6 +539,7 @@ class MeshTracker:
         self._anchors = TextureAnchors(obs.grey, V, mesh.faces, visible, obs.K, cfg.anchor_points) \
             if cfg.use_correspondence and cfg.anchor_points > 0 and self._appearance.textured else None
         self._colour = ColourModel(frame.rgb, obs.mask)
+        self._surroundings_measured = measured_around(frame.depth_m, obs.mask) >= MEASURED_SURROUNDINGS
         self._support_plane = fit_support(frame.depth_m, obs.mask, frame.camera.K)
         self._registration = GlobalRegistration(resolve_kind("auto"), rng=self._rng)
         self._registration.build(obs.grey, feature_mask, V, mesh.faces, obs.K)
@@ -890,9 +901,12 @@ class MeshTracker:
         near = self.config.unknown_occluder_m
         if near <= 0:
             return frame
+        if self.last_observation is not None:
+            self._object_before.append(self.last_observation.mask)
         front = occluders_in_front(frame.depth_m, V, self.mesh.faces, frame.camera.K, near, frame.occluder_mask,
                                    self._unknown_occluder, rgb=frame.rgb, colour=self._colour,
-                                   workspace=None if differs is None else ~differs, support=self._support_plane)
+                                   workspace=None if differs is None else ~differs, support=self._support_plane,
+                                   object_before=tuple(self._object_before) if self._surroundings_measured else ())
         self._unknown_occluder = front
         if front is None:
             return frame

@@ -32,6 +32,8 @@ Beside them, not in the table by default (``MORE_HANDLED_SCENES``):
   back 1-8 cm before it, as a hand on the cloth or a tool passing close: nearer than the
   tracker's occlusion margin.
 - ``occluder_plain``: ``occluder_close`` on a cloth of one plain colour.
+- ``occluder_near_camera``: a hand-sized ball passes a few tens of centimetres in front of
+  the camera, inside the sensor's minimum range (no depth), and stops over the cloth.
 
 Their occluders are drawn (``sim.solids``), never simulated: a scene made with
 ``occluders=False`` is their twin, the same cloth moving the same way with nothing drawn
@@ -60,7 +62,7 @@ from sim.noise import DepthNoiseModel
 from sim.physics import ClothMaterial, ClothPhysics
 from sim.robot_drawing import GripperLook
 from sim.scene import PhysicsScene, check_seed
-from sim.solids import SolidMesh, box, capsule
+from sim.solids import SolidMesh, box, capsule, sphere
 from sim.textures import plain_texture, poster_texture, random_plain_colour
 
 log = logging.getLogger(__name__)
@@ -583,6 +585,53 @@ def occluder_plain_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSp
     return replace(spec, name="occluder_plain", texture_rgb=plain_texture(random_plain_colour(rng)))
 
 
+def occluder_near_camera_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
+    """A hand-sized ball passes just in front of the camera, stops over the hanging cloth and
+    goes on: inside the sensor's minimum range (``sim.noise.DepthNoiseModel.min_range_m``), so
+    it has no depth at all.
+
+    The cloth, its motion, camera and room are ``occluder_sweep``'s (the same draws); the cloth
+    is printed or, on half the seeds, of one plain colour. The ball (radius 4-7 cm, its centre
+    22 cm or more from the camera and its far side within 38 cm, on the line of sight to the
+    cloth's middle; a skin tone, a sleeve's colour or a robot's grey) comes in from beside the
+    cloth as the camera sees it, from the left or the right, in 0.4-0.6 s, stops over the
+    cloth's middle (off it by up to a fifth of the cloth's width) for 0.5-1.0 s, and goes on
+    out of the other side as fast.
+    """
+    spec = occluder_sweep_spec(rng, camera)
+    if rng.random() < 0.5:
+        spec = replace(spec, texture_rgb=plain_texture(random_plain_colour(rng)))
+    radius = rng.uniform(0.04, 0.07)
+    distance = rng.uniform(0.22, 0.38 - radius)  # the ball's far side within 38 cm of the camera
+    colour = _occluder_colour(rng)
+    eye = spec.T_world_cam[:3, 3]
+    right = spec.T_world_cam[:3, 0]  # the camera's x axis, in the world
+    cloth = spec.cloth_vertices_world
+    centre = 0.5 * (cloth.min(axis=0) + cloth.max(axis=0))
+    ahead = (centre - eye) / np.linalg.norm(centre - eye)
+    # lateral offsets (metres at the ball's distance) from wholly beside the cloth in view to where it stops
+    half_view = 0.5 * np.ptp(cloth @ right) * distance / np.linalg.norm(centre - eye)
+    side = rng.choice([-1.0, 1.0])
+    beside = side * (half_view + radius + 0.03)
+    stop = rng.uniform(-0.2, 0.2) * half_view
+    lead_in, move_s, stay_s = 0.3, rng.uniform(0.4, 0.6), rng.uniform(0.5, 1.0)
+
+    def occluders(t: float) -> SolidMesh | None:
+        if t < lead_in or t > lead_in + 2 * move_s + stay_s:
+            return None
+        phase = t - lead_in
+        if phase < move_s:
+            x = beside + (stop - beside) * phase / move_s
+        elif phase < move_s + stay_s:
+            x = stop
+        else:
+            x = stop + (-beside - stop) * (phase - move_s - stay_s) / move_s
+        return sphere(eye + distance * ahead + x * right, radius, colour)
+
+    return replace(spec, name="occluder_near_camera", occluders=occluders,
+                   n_frames=_frames_for(lead_in + 2 * move_s + stay_s + _AFTER_S))
+
+
 def gripper_corner_move_spec(rng: np.random.Generator, camera: CameraInfo) -> SceneSpec:
     """A robot's gripper, wrist and arm grasp a hanging cloth's free bottom corner, lift it and carry it sideways.
 
@@ -872,6 +921,7 @@ towel_sway = _factory("towel_sway", towel_sway_spec)
 occluder_sweep = _factory("occluder_sweep", occluder_sweep_spec)
 occluder_close = _factory("occluder_close", occluder_close_spec)
 occluder_plain = _factory("occluder_plain", occluder_plain_spec)
+occluder_near_camera = _factory("occluder_near_camera", occluder_near_camera_spec)
 gripper_corner_move = _factory("gripper_corner_move", gripper_corner_move_spec)
 table_lift = _factory("table_lift", table_lift_spec)
 
@@ -883,6 +933,7 @@ SCENES: dict[str, Callable[..., ClothScene]] = {
     "occluder_sweep": occluder_sweep,
     "occluder_close": occluder_close,
     "occluder_plain": occluder_plain,
+    "occluder_near_camera": occluder_near_camera,
     "gripper_corner_move": gripper_corner_move,
     "table_lift": table_lift,
 }
@@ -891,7 +942,7 @@ PAPER_SCENES = ("poster_bend", "shirt_chair", "shirt_textureless_rotate", "towel
 #: A cloth handled, with an occluder drawn in front of it (the "Tracking while handled" table).
 HANDLED_SCENES = ("occluder_sweep", "gripper_corner_move", "table_lift")
 #: More handled scenes, run when named (``launch_scripts.evaluate --handled --scenes NAME``).
-MORE_HANDLED_SCENES = ("occluder_close", "occluder_plain")
+MORE_HANDLED_SCENES = ("occluder_close", "occluder_plain", "occluder_near_camera")
 
 
 def make_scene(name: str, seed: int = 0, noise: bool = True, width: int = 640, height: int = 480,

@@ -66,8 +66,8 @@ def test_record_writes_occluder_masks_named_as_the_depth_images_and_drops_frames
 
 
 @pytest.mark.parametrize("args, message", [
-    (["sofa", "OUT"], "unknown scene 'sofa'; expected one of gripper_corner_move, occluder_close, occluder_plain, "
-                     "occluder_sweep, poster_bend"),
+    (["sofa", "OUT"], "unknown scene 'sofa'; expected one of gripper_corner_move, occluder_close, "
+                     "occluder_near_camera, occluder_plain, occluder_sweep, poster_bend"),
     (["poster_bend", "OUT", "--frames", "0"], "argument --frames: expected a positive integer, got 0"),
     (["poster_bend", "OUT", "--seed", "x"], "argument --seed: expected a non-negative integer, got 'x'"),
     (["poster_bend", "OUT", "--width", "8"], "image size must be at least 16x16, got 8x480"),
@@ -88,8 +88,9 @@ def test_bad_argument_from_the_shell_has_no_traceback(tmp_path):
                             cwd=REPO, capture_output=True, text=True, timeout=120, check=False)
     assert result.returncode == 2
     assert result.stderr.strip() == ("python -m launch_scripts.record_scene: error: unknown scene 'sofa'; "
-                                     "expected one of gripper_corner_move, occluder_close, occluder_plain, occluder_sweep, "
-                                     "poster_bend, shirt_chair, shirt_textureless_rotate, table_lift, towel_sway")
+                                     "expected one of gripper_corner_move, occluder_close, occluder_near_camera, "
+                                     "occluder_plain, occluder_sweep, poster_bend, shirt_chair, shirt_textureless_rotate, "
+                                     "table_lift, towel_sway")
 
 
 def test_refuses_a_non_empty_output_folder(tmp_path):

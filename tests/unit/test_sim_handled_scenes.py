@@ -16,6 +16,7 @@ from sim.scenes import (
     kinect_camera,
     make_scene,
     occluder_close_spec,
+    occluder_near_camera_spec,
     occluder_plain_spec,
     occluder_sweep_spec,
     table_lift_spec,
@@ -96,6 +97,30 @@ def test_the_close_sweep_moves_the_same_cloth_with_its_occluder_just_in_front():
         np.testing.assert_array_equal(plain.occluders(0.5).points, close.occluders(0.5).points)
         assert np.ptp(plain.texture_rgb.reshape(-1, 3), axis=0).max() == 0, "one colour"
         assert np.ptp(close.texture_rgb.reshape(-1, 3), axis=0).max() > 0
+
+
+def test_the_near_camera_ball_is_too_near_to_measure_and_stops_over_the_cloth():
+    """``occluder_near_camera``: the sweep's cloth and motion; a ball inside the simulated
+    sensor's minimum range, beside the cloth in view at first and last, over it between."""
+    from sim.noise import DepthNoiseModel
+
+    camera = kinect_camera(W, H)
+    for seed in range(12):
+        far = occluder_sweep_spec(np.random.default_rng(seed), camera)
+        near = occluder_near_camera_spec(np.random.default_rng(seed), camera)
+        assert near.name == "occluder_near_camera"
+        np.testing.assert_array_equal(near.cloth_vertices_world, far.cloth_vertices_world)
+        T_cam_world = np.linalg.inv(near.T_world_cam)
+        cloth = transform_points(T_cam_world, near.cloth_vertices_world)
+        cloth_u = cloth[:, 0] / cloth[:, 2]
+        shown = [(k / 30, near.occluders(k / 30)) for k in range(near.n_frames)]
+        balls = [(t, transform_points(T_cam_world, b.points)) for t, b in shown if b is not None]
+        assert balls and all(p[:, 2].max() < DepthNoiseModel().min_range_m for _, p in balls), f"seed {seed}"
+        u = [p[:, 0] / p[:, 2] for _, p in balls]
+        for x in (u[0], u[-1]):
+            assert x.max() < cloth_u.min() or x.min() > cloth_u.max(), f"seed {seed}: comes in and goes out beside it"
+        middle = u[len(u) // 2]
+        assert cloth_u.min() < middle.mean() < cloth_u.max(), f"seed {seed}: stops over the cloth"
 
 
 @pytest.mark.slow

@@ -16,8 +16,9 @@ def _frames(scene, n):
 
 
 def test_registry_and_unknown_names():
-    assert sorted(SCENES) == ["gripper_corner_move", "occluder_close", "occluder_plain", "occluder_sweep", "poster_bend",
-                              "shirt_chair", "shirt_textureless_rotate", "table_lift", "towel_sway"]
+    assert sorted(SCENES) == ["gripper_corner_move", "occluder_close", "occluder_near_camera", "occluder_plain",
+                              "occluder_sweep", "poster_bend", "shirt_chair", "shirt_textureless_rotate", "table_lift",
+                              "towel_sway"]
     assert PAPER_SCENES == ("poster_bend", "shirt_chair", "shirt_textureless_rotate", "towel_sway")
     with pytest.raises(ValueError, match="unknown scene 'sofa'; expected one of gripper_corner_move, occluder_close, "):
         make_scene("sofa")
