@@ -112,8 +112,9 @@ MIN_UNLIKE_VERTICES = 2
 #: pixel is not of the object's colour: the even odds the colour segmentation draws its line at.
 UNLIKE_P = 0.5
 #: Vertices, at least, of the predicted mesh on pixels without depth and not of the object's
-#: hue before an object too near to measure is looked for.
-MIN_BLIND_VERTICES = 3
+#: hue, seen in the frame before or under the object found then, before an object too near to
+#: measure is looked for.
+MIN_BLIND_VERTICES = 8
 #: Such an object is wider than this (image pixels) everywhere: opening its patch by it drops
 #: the strips along the predicted mesh's edge that a cloth moving a few pixels bares (a
 #: background beyond the sensor's range has no depth either).
@@ -174,7 +175,7 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
                        near_m: float, known: np.ndarray | None = None, before: np.ndarray | None = None,
                        min_px: int = 40, rgb: np.ndarray | None = None, colour: ColourModel | None = None,
                        workspace: np.ndarray | None = None, support: SupportPlane | None = None,
-                       object_before: tuple = ()) -> np.ndarray | None:
+                       object_before: tuple = (), seen_before: np.ndarray | None = None) -> np.ndarray | None:
     """(H, W) bool: objects in front of the cloth that the predicted mesh ``vertices``
     (N, 3), ``faces`` (M, 3) does not explain (see the module docstring); None when there is
     none.
@@ -196,8 +197,12 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
     support : the plane the object rests on or stands in front of, or None
     Neither ``workspace`` nor ``support`` pixels are taken for an object found by its colour.
     object_before : (H, W) bool masks, the object as segmented in the last few frames; with
-        them, and ``rgb`` and an informative ``colour``, an object too near the camera to be
-        measured is looked for where the object was (``_too_near``)
+        them, ``seen_before``, ``rgb`` and an informative ``colour``, an object too near the
+        camera to be measured is looked for where the object was (``_too_near``)
+    seen_before : (N,) bool, the vertices seen in the frame before. Such an object is looked
+        for only where it covers some of them, or lies where one was found in the frame before:
+        a vertex without depth that was not seen before either (on the band a sensor leaves
+        along the cloth's edge) says nothing new, and the search costs milliseconds a frame.
     """
     h, w = depth_m.shape
     uv = project(vertices, K)
@@ -208,9 +213,11 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
     # colour covers some at pixels not of the object's hue.
     covered = measured & (d < vertices[:, 2] - near_m)
     by_colour = rgb is not None and colour is not None and colour.informative
-    blind = None  # vertices without depth, of other hues: under an object too near to measure?
-    if by_colour and len(object_before):
-        blind = inside & ~measured
+    blind = None  # vertices without depth, of other hues, newly: under an object too near to measure?
+    if by_colour and len(object_before) and seen_before is not None and len(seen_before) == len(vertices):
+        blind = inside & ~measured & seen_before
+        if before is not None:
+            blind |= inside & ~measured & before[rows, cols]
         blind[blind] = colour.chroma_probability_at(rgb[rows[blind], cols[blind]]) < UNLIKE_P
         blind = blind if np.count_nonzero(blind) >= MIN_BLIND_VERTICES else None
     if by_colour:

@@ -227,10 +227,14 @@ def test_a_fold_in_the_shade_is_cloth_not_an_object_in_front(sheet):
     assert occluders_in_front(depth, *sheet, K, near_m=0.03, rgb=rgb, colour=colour) is None
 
 
+SHEET_VERTICES = rectangle_mesh(0.6, 0.45, 0.03).canonical
+
+
 def too_near(region, wall_m=2.5):
-    """(depth, rgb, colour model, object before): the blue sheet in front of a grey wall at
-    ``wall_m`` (0: beyond the sensor's range, no depth), and a red object over ``region``
-    (240, 320) bool too near the camera for depth; the model learnt without it."""
+    """(depth, rgb, colour model, what the frame before showed): the blue sheet in front of a grey
+    wall at ``wall_m`` (0: beyond the sensor's range, no depth), and a red object over ``region``
+    (240, 320) bool too near the camera for depth; the model learnt without it; the sheet
+    segmented and every vertex seen in the frame before."""
     depth = flat()
     sheet_mask = depth < 2.0
     if not wall_m:
@@ -239,14 +243,14 @@ def too_near(region, wall_m=2.5):
     colour = ColourModel(rgb, sheet_mask)
     depth[region] = 0.0
     rgb[region] = (200, 60, 50)
-    return depth, rgb, colour, (sheet_mask,)
+    return depth, rgb, colour, {"object_before": (sheet_mask,), "seen_before": np.ones(len(SHEET_VERTICES), bool)}
 
 
 def test_an_object_too_near_to_measure_is_found_where_the_cloth_was(sheet):
     hand = box(60, 200, 0, 150)  # from the image's left edge over the sheet's left part: no depth at all
     depth, rgb, colour, before = too_near(hand)
     assert occluders_in_front(depth, *sheet, K, near_m=0.03, rgb=rgb, colour=colour) is None  # nothing to step from
-    front = occluders_in_front(depth, *sheet, K, near_m=0.03, rgb=rgb, colour=colour, object_before=before)
+    front = occluders_in_front(depth, *sheet, K, near_m=0.03, rgb=rgb, colour=colour, **before)
     vertices, faces = sheet
     over_mesh = faces_mask(project(vertices, K), faces, depth.shape)
     assert front is not None and front[hand & over_mesh].mean() > 0.95
@@ -266,8 +270,10 @@ def test_pixels_without_depth_that_never_were_cloth_or_are_of_its_hue_are_not_an
     smaller[:, :110] = False  # the sheet's left part moved away long ago
     depth[~smaller] = 0.0
     rgb[~smaller] = (150, 150, 145)
-    assert occluders_in_front(depth, *sheet, K, near_m=0.03, rgb=rgb, colour=colour, object_before=(smaller,)) is None
+    seen = np.ones(len(vertices), bool)
+    assert occluders_in_front(depth, *sheet, K, near_m=0.03, rgb=rgb, colour=colour, object_before=(smaller,),
+                              seen_before=seen) is None
     # The sheet's own pixels without depth (seen at a grazing angle): of its hue.
     depth, rgb, colour, before = too_near(np.zeros((240, 320), bool))
     depth[box(80, 160, 120, 200)] = 0.0
-    assert occluders_in_front(depth, *sheet, K, near_m=0.03, rgb=rgb, colour=colour, object_before=before) is None
+    assert occluders_in_front(depth, *sheet, K, near_m=0.03, rgb=rgb, colour=colour, **before) is None
