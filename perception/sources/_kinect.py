@@ -35,7 +35,7 @@ import cv2
 import numpy as np
 
 from ipc.messages import CameraInfo, RGBDFrame
-from perception.sources._base import FrameSource, SourceError, optional_import
+from perception.sources._base import FrameSource, SourceError, optional_import, refuse_device_options
 
 log = logging.getLogger(__name__)
 
@@ -234,11 +234,9 @@ class KinectSource(FrameSource):
         self._started = False
         self._seq = 0
         if recording is not None:
-            given = dict(colour_resolution=colour_resolution, depth_mode=depth_mode, fps=fps, device_id=device_id)
-            changed = [f"{k}={v!r}" for k, v in given.items() if v != _DEFAULTS[k]]
-            if changed:
-                raise ValueError(f"KinectSource: a recording has its own colour resolution, depth mode, frame rate and "
-                                 f"device; got {', '.join(changed)} with recording={str(recording)!r}")
+            refuse_device_options("KinectSource", "colour resolution, depth mode, frame rate and device",
+                                  dict(colour_resolution=colour_resolution, depth_mode=depth_mode, fps=fps,
+                                       device_id=device_id), _DEFAULTS, recording)
             self._open_recording(Path(recording))
             return
         k4a = optional_import("pyk4a", extra="kinect", feature="the Azure Kinect source")

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from ipc.messages import CameraInfo, RGBDFrame
-from perception.sources._base import FrameSource, SourceError, optional_import
+from perception.sources._base import FrameSource, SourceError, optional_import, refuse_device_options
 
 log = logging.getLogger(__name__)
 
@@ -127,11 +127,8 @@ class RealSenseSource(FrameSource):
     def __init__(self, width: int = 640, height: int = 480, fps: int = 30, serial: str | None = None,
                  timeout_s: float = 5.0, recording: str | Path | None = None):
         if recording is not None:
-            given = dict(width=width, height=height, fps=fps, serial=serial)
-            changed = [f"{k}={v!r}" for k, v in given.items() if v != _DEFAULTS[k]]
-            if changed:
-                raise ValueError(f"RealSenseSource: a recording has its own size, frame rate and device; got "
-                                 f"{', '.join(changed)} with recording={str(recording)!r}")
+            refuse_device_options("RealSenseSource", "size, frame rate and device",
+                                  dict(width=width, height=height, fps=fps, serial=serial), _DEFAULTS, recording)
         rs = optional_import("pyrealsense2", extra="realsense", feature="the RealSense source")
         self._rs = rs
         self.timeout_ms = int(1000 * timeout_s)
