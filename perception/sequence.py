@@ -339,8 +339,8 @@ def _warn_unlikely_spacing(list_file: Path, timestamps: np.ndarray) -> None:
         return
     spacing = float(np.median(np.diff(timestamps)))
     if spacing > MAX_LIKELY_SPACING_S:
-        log.warning("%s: frames %.3g s apart (median); TUM timestamps are seconds: are these milliseconds?",
-                    list_file, spacing)
+        log.warning("%s: frames %.3g s apart (median): paced by their timestamps, they play that far apart "
+                    "(TUM timestamps are seconds; milliseconds would want dividing by 1000)", list_file, spacing)
 
 
 def open_sequence(path) -> Sequence:

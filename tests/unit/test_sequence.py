@@ -253,7 +253,8 @@ def test_timestamps_too_far_apart_to_be_seconds_are_said(tmp_path, caplog):
         path.write_text("\n".join(lines) + "\n")
     with caplog.at_level("WARNING", logger="perception.sequence"):
         assert len(open_sequence(tmp_path / "seq")) == 3
-    assert "frames 33.3 s apart (median); TUM timestamps are seconds: are these milliseconds?" in caplog.text
+    assert "frames 33.3 s apart (median): paced by their timestamps, they play that far apart (TUM timestamps are " \
+        "seconds; milliseconds would want dividing by 1000)" in caplog.text
     caplog.clear()
     _write(tmp_path / "ok")
     with caplog.at_level("WARNING", logger="perception.sequence"):
