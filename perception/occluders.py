@@ -215,9 +215,7 @@ def occluders_in_front(depth_m: np.ndarray, vertices: np.ndarray, faces: np.ndar
     by_colour = rgb is not None and colour is not None and colour.informative
     blind = None  # vertices without depth, of other hues, newly: under an object too near to measure?
     if by_colour and len(object_before) and seen_before is not None and len(seen_before) == len(vertices):
-        blind = inside & ~measured & seen_before
-        if before is not None:
-            blind |= inside & ~measured & before[rows, cols]
+        blind = inside & ~measured & (seen_before if before is None else seen_before | before[rows, cols])
         blind[blind] = colour.chroma_probability_at(rgb[rows[blind], cols[blind]]) < UNLIKE_P
         blind = blind if np.count_nonzero(blind) >= MIN_BLIND_VERTICES else None
     if by_colour:
@@ -264,10 +262,10 @@ class _Grid:
     it covers vertices, padded by a face and by ``FAR_RING_PX``, the cloth it is judged against.
 
     shape : the image's (H, W); y0, y1, x0, x1 : the box in it (y0, x0 multiples of
-    ``STEP_PX``); depth : measured
-    depth, 0 where none; valid : where measured; z : the predicted mesh's depth, 0 off it;
-    on_mesh : measured where the mesh is predicted, less the known occluders; offset : depth
-    less z there, 0 elsewhere; was : the object in front found in the frame before, or None.
+    ``STEP_PX``); depth : measured depth, 0 where none; valid : where measured; z : the
+    predicted mesh's depth, 0 off it; on_mesh : measured where the mesh is predicted, less the
+    known occluders; offset : depth less z there, 0 elsewhere; was : the object in front found
+    in the frame before, or None.
     """
 
     shape: tuple[int, int]

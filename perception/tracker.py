@@ -901,12 +901,12 @@ class MeshTracker:
         near = self.config.unknown_occluder_m
         if near <= 0:
             return frame
-        if self.last_observation is not None:
+        if self._surroundings_measured and self.last_observation is not None:
             self._object_before.append(self.last_observation.mask)
         front = occluders_in_front(frame.depth_m, V, self.mesh.faces, frame.camera.K, near, frame.occluder_mask,
                                    self._unknown_occluder, rgb=frame.rgb, colour=self._colour,
                                    workspace=None if differs is None else ~differs, support=self._support_plane,
-                                   object_before=tuple(self._object_before) if self._surroundings_measured else (),
+                                   object_before=tuple(self._object_before),
                                    seen_before=self._visible)
         self._unknown_occluder = front
         if front is None:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import abc
 import dataclasses
 import importlib
+import inspect
 import logging
 import math
 import threading
@@ -54,14 +55,14 @@ def optional_import(module: str, extra: str, feature: str):
                           f"({e}); install the system libraries it needs (the README's paragraph on real sensors)") from None
 
 
-def refuse_device_options(source: str, owns: str, given: dict, defaults: dict, recording) -> None:
+def refuse_device_options(source: type, owns: str, given: dict, recording) -> None:
     """Raise ValueError naming the device options in ``given`` (name -> value) that differ from
-    their ``defaults``: a ``recording`` has its own (``owns``, e.g. "size, frame rate and
-    device"), and an option that would be ignored is refused instead. ``source``: the class's
-    name, for the message."""
-    changed = [f"{k}={v!r}" for k, v in given.items() if v != defaults[k]]
+    their defaults in ``source``'s constructor: a ``recording`` has its own (``owns``, e.g.
+    "size, frame rate and device"), and an option that would be ignored is refused instead."""
+    defaults = inspect.signature(source.__init__).parameters
+    changed = [f"{k}={v!r}" for k, v in given.items() if v != defaults[k].default]
     if changed:
-        raise ValueError(f"{source}: a recording has its own {owns}; got {', '.join(changed)} with "
+        raise ValueError(f"{source.__name__}: a recording has its own {owns}; got {', '.join(changed)} with "
                          f"recording={str(recording)!r}")
 
 

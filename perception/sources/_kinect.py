@@ -59,9 +59,6 @@ FRAME_RATES = {5: "FPS_5", 15: "FPS_15", 30: "FPS_30"}
 #: Colour formats this source turns into RGB (pyk4a ImageFormat member names).
 COLOUR_FORMATS = ("COLOR_BGRA32", "COLOR_MJPG", "COLOR_NV12", "COLOR_YUY2")
 
-#: KinectSource's device options and their defaults, which a recording leaves as they are.
-_DEFAULTS = {"colour_resolution": "720p", "depth_mode": "nfov_unbinned", "fps": 30, "device_id": 0}
-
 
 def camera_info_from_kinect(calibration, k4a, width: int, height: int,
                             frame_id: str = "camera_color_optical_frame") -> CameraInfo:
@@ -234,9 +231,9 @@ class KinectSource(FrameSource):
         self._started = False
         self._seq = 0
         if recording is not None:
-            refuse_device_options("KinectSource", "colour resolution, depth mode, frame rate and device",
+            refuse_device_options(KinectSource, "colour resolution, depth mode, frame rate and device",
                                   dict(colour_resolution=colour_resolution, depth_mode=depth_mode, fps=fps,
-                                       device_id=device_id), _DEFAULTS, recording)
+                                       device_id=device_id), recording)
             self._open_recording(Path(recording))
             return
         k4a = optional_import("pyk4a", extra="kinect", feature="the Azure Kinect source")

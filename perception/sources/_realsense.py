@@ -100,10 +100,6 @@ def frame_from_realsense(colour_frame, depth_frame, camera: CameraInfo, depth_un
                      seq=int(colour_frame.get_frame_number()))
 
 
-#: The device options' defaults, which a recording leaves as they are.
-_DEFAULTS = {"width": 640, "height": 480, "fps": 30, "serial": None}
-
-
 class RealSenseSource(FrameSource):
     """A RealSense camera streaming colour (rgb8) and depth (z16) at one size and rate, or a
     recording of one.
@@ -127,8 +123,8 @@ class RealSenseSource(FrameSource):
     def __init__(self, width: int = 640, height: int = 480, fps: int = 30, serial: str | None = None,
                  timeout_s: float = 5.0, recording: str | Path | None = None):
         if recording is not None:
-            refuse_device_options("RealSenseSource", "size, frame rate and device",
-                                  dict(width=width, height=height, fps=fps, serial=serial), _DEFAULTS, recording)
+            refuse_device_options(RealSenseSource, "size, frame rate and device",
+                                  dict(width=width, height=height, fps=fps, serial=serial), recording)
         rs = optional_import("pyrealsense2", extra="realsense", feature="the RealSense source")
         self._rs = rs
         self.timeout_ms = int(1000 * timeout_s)

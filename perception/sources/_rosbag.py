@@ -214,7 +214,6 @@ class RosbagSource(FrameSource):
                                     "skipped", self.name, len(msg.data), rgb_topic)
                         self.skipped += 1
                         pending[pair] = None
-                        image = None
                 else:
                     image = rgb_from_image(msg)
                 if image is not None and image.shape[:2] != shape:
