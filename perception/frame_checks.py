@@ -28,7 +28,7 @@ import numpy as np
 
 from ipc.messages import CameraInfo, RGBDFrame
 from perception.geometry import backproject
-from perception.initial_mesh import object_frame
+from perception.initial_mesh import object_depth, object_frame
 from perception.mesh import SQRT3_2
 
 #: Depth range of every RGB-D sensor with margin, metres: structured light and time of
@@ -118,13 +118,13 @@ def object_lattice_bound(frame: RGBDFrame, mask: np.ndarray, spacing_m: float) -
     mask : (H, W) bool, the object's pixels
     returns an int >= 0 (0 when fewer than 3 pixels of the mask have depth)
     """
-    rows, cols = np.nonzero(mask & (frame.depth_m > 0))
+    depth = object_depth(frame.depth_m, mask)  # without flying pixels, as the tracker
+    rows, cols = np.nonzero(mask & (depth > 0))
     if rows.size < 3:
         return 0
     step = max(1, rows.size // 20000)  # a plane fit needs no more points
     rows, cols = rows[::step], cols[::step]
-    points = backproject(np.column_stack([cols, rows]).astype(np.float64), frame.depth_m[rows, cols].astype(np.float64),
-                         frame.camera.K)
+    points = backproject(np.column_stack([cols, rows]).astype(np.float64), depth[rows, cols], frame.camera.K)
     centre, u, v, _ = object_frame(points)
     extent_u, extent_v = np.ptp((points - centre) @ u), np.ptp((points - centre) @ v)
     # lattice_covering: rows SQRT3_2 * spacing apart, points spacing apart, one spacing of margin.

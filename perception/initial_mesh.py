@@ -5,6 +5,12 @@ spacing is laid in that plane, oriented with the image axes; the grid vertices w
 image falls on the object mask are kept, and each is lifted onto the measured surface
 along its camera ray. A mesh built off-line (e.g. ``rectangle_mesh`` of a known size)
 is placed the same way, centred on the object and aligned with its principal axes.
+
+A real sensor mixes the object and what lies behind it at the object's edge: a few pixels of
+the mask then read the wall a metre behind ("flying pixels"). A handful of them outweighs
+the whole object in a least-squares plane and tilts it edge-on to the camera, and a vertex
+lifted onto one is a spike; so depths far outside the object's own range count as missing
+(``object_depth``).
 """
 
 from __future__ import annotations
@@ -17,18 +23,38 @@ from perception.mesh import CanonicalMesh, lattice_covering, lattice_to_xy, mesh
 from perception.observation import Observation
 from perception.raster import disc
 
+#: A depth further from the median of the object's than this many robust standard deviations
+#: (from the median absolute deviation), and than ``FLYING_MIN_M``, is not the object's. On the
+#: simulated scenes' first frames (hanging, lifted and table-top cloths) the object's depths
+#: span at most 0.6 of that band; flying pixels lie metres off.
+FLYING_SIGMAS = 6.0
+FLYING_MIN_M = 0.15
+
 
 class InitialisationError(ValueError):
     """The first frame cannot carry a mesh (empty mask, no depth, object too small)."""
 
 
-def _object_points(obs: Observation) -> np.ndarray:
-    ys, xs = np.nonzero(obs.mask & (obs.depth_m > 0))
+def object_depth(depth_m: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``depth_m`` (H, W) metres with 0 where none was measured and where the depth lies
+    outside the range of the object under ``mask`` (H, W) bool (``FLYING_SIGMAS``,
+    ``FLYING_MIN_M``: flying pixels)."""
+    depth = np.where(np.isfinite(depth_m) & (depth_m > 0), depth_m, 0.0)
+    z = depth[mask & (depth > 0)]
+    if len(z) == 0:
+        return depth
+    median = float(np.median(z))
+    band = max(FLYING_SIGMAS * 1.4826 * float(np.median(np.abs(z - median))), FLYING_MIN_M)
+    return np.where(np.abs(depth - median) <= band, depth, 0.0)
+
+
+def _object_points(obs: Observation, depth: np.ndarray) -> np.ndarray:
+    ys, xs = np.nonzero(obs.mask & (depth > 0))
     if len(xs) < 30:
         raise InitialisationError(f"the object mask has {len(xs)} pixels with depth; at least 30 are needed")
     step = max(1, len(xs) // 20000)
     uv = np.column_stack([xs[::step], ys[::step]]).astype(np.float64)
-    return rays(uv, obs.K) * obs.depth_m[ys[::step], xs[::step], None]
+    return rays(uv, obs.K) * depth[ys[::step], xs[::step], None]
 
 
 def object_frame(points: np.ndarray):
@@ -51,17 +77,19 @@ def object_frame(points: np.ndarray):
     return c, u, v, n
 
 
-def lift(points_plane: np.ndarray, obs: Observation, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+def lift(points_plane: np.ndarray, obs: Observation, depth: np.ndarray,
+         mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Move points onto the measured surface along their camera rays.
 
     points_plane : (N, 3) camera-frame points (on the fitted plane)
+    depth : (H, W) the object's depth (``object_depth``), 0 where none
     mask : (H, W) bool deciding which points are on the object (default: the observation's)
     returns (lifted (N, 3), on_object (N,) bool); points without depth stay where they were
     """
     uv = project(points_plane, obs.K)
     h, w = obs.mask.shape
     cols, rows, inside = pixel_index(uv, w, h)
-    d = np.where(inside, obs.depth_m[rows, cols], 0.0).astype(np.float64)
+    d = np.where(inside, depth[rows, cols], 0.0).astype(np.float64)
     on = inside & (obs.mask if mask is None else mask)[rows, cols]
     has = on & (d > 0)
     lifted = points_plane.copy()
@@ -88,12 +116,13 @@ def object_area_m2(obs: Observation) -> float:
     """The object's area in square metres: the sum of its pixels' footprints on its fitted
     plane (a pixel at depth z covers (z / fx)(z / fy) square metres facing the camera, more
     on a tilted plane)."""
-    ys, xs = np.nonzero(obs.mask & (obs.depth_m > 0))
+    depth = object_depth(obs.depth_m, obs.mask)
+    ys, xs = np.nonzero(obs.mask & (depth > 0))
     if len(xs) < 30:
         raise InitialisationError(f"the object mask has {len(xs)} pixels with depth; at least 30 are needed")
-    z = obs.depth_m[ys, xs].astype(np.float64)
+    z = depth[ys, xs].astype(np.float64)
     r = rays(np.column_stack([xs, ys]).astype(np.float64), obs.K)
-    _, _, _, n = object_frame(_object_points(obs))
+    _, _, _, n = object_frame(_object_points(obs, depth))
     facing = np.abs(r @ n) / np.linalg.norm(r, axis=1)  # cosine between each pixel's ray and the plane's normal
     return float(np.sum(z * z / (obs.K[0, 0] * obs.K[1, 1]) / np.maximum(facing, 0.2)))
 
@@ -129,7 +158,8 @@ def automatic_spacing(area_m2: float, target_vertices: int, median_depth_m: floa
 def spacing_for(obs: Observation, target_vertices: int, min_px: float = MIN_SPACING_PX) -> float:
     """The mesh spacing, metres, that gives the object of ``obs`` about ``target_vertices`` vertices
     (``automatic_spacing`` over the object's area, ``object_area_m2``, and its median depth)."""
-    z = obs.depth_m[obs.mask & (obs.depth_m > 0)]
+    depth = object_depth(obs.depth_m, obs.mask)
+    z = depth[obs.mask & (depth > 0)]
     return automatic_spacing(object_area_m2(obs), target_vertices, float(np.median(z)), obs.K[0, 0], min_px)
 
 
@@ -138,20 +168,21 @@ def mesh_from_mask(obs: Observation, spacing_m: float) -> tuple[CanonicalMesh, n
 
     returns (mesh, vertices (N, 3) float64 metres in the camera frame)
     """
-    pts = _object_points(obs)
+    depth = object_depth(obs.depth_m, obs.mask)
+    pts = _object_points(obs, depth)
     c, u, v, _ = object_frame(pts)
     pu, pv = (pts - c) @ u, (pts - c) @ v
     lat = lattice_covering((pu.min(), pu.max()), (pv.min(), pv.max()), spacing_m)
     xy = lattice_to_xy(lat, spacing_m)
     on_plane = c + xy[:, :1] * u + xy[:, 1:] * v
     spacing_px = obs.K[0, 0] * spacing_m / float(np.median(pts[:, 2]))
-    _, on = lift(on_plane, obs, solid_mask(obs.mask, int(round(spacing_px))))
+    _, on = lift(on_plane, obs, depth, solid_mask(obs.mask, int(round(spacing_px))))
     try:
         mesh = mesh_from_lattice(lat[on], spacing_m)
     except ValueError as e:
         raise InitialisationError(str(e)) from None
     xy = mesh.material_xy
-    lifted, _ = lift(c + xy[:, :1] * u + xy[:, 1:] * v, obs)
+    lifted, _ = lift(c + xy[:, :1] * u + xy[:, 1:] * v, obs, depth)
     return mesh, lifted
 
 
@@ -160,7 +191,8 @@ def place_mesh(mesh: CanonicalMesh, obs: Observation) -> np.ndarray:
 
     returns (N, 3) float64 vertices in the camera frame, lifted onto the surface where seen
     """
-    pts = _object_points(obs)
+    depth = object_depth(obs.depth_m, obs.mask)
+    pts = _object_points(obs, depth)
     c, u, v, _ = object_frame(pts)
     xy = mesh.material_xy - mesh.material_xy.mean(axis=0)
     obj_uv = np.column_stack([(pts - c) @ u, (pts - c) @ v])
@@ -169,5 +201,5 @@ def place_mesh(mesh: CanonicalMesh, obs: Observation) -> np.ndarray:
     ang = np.arctan2(ou[1], ou[0]) - np.arctan2(mu[1], mu[0])
     R = np.array([[np.cos(ang), -np.sin(ang)], [np.sin(ang), np.cos(ang)]])
     xy = xy @ R.T + obj_uv.mean(axis=0)
-    lifted, _ = lift(c + xy[:, :1] * u + xy[:, 1:] * v, obs)
+    lifted, _ = lift(c + xy[:, :1] * u + xy[:, 1:] * v, obs, depth)
     return lifted

@@ -345,8 +345,12 @@ def _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg):
         return np.zeros_like(candidate), 0.0
     overlap = np.bincount(labels[pred], minlength=n)
     area = stats[:, cv2.CC_STAT_AREA]
-    # A region belongs to the object when a real part of it lies where the mesh was predicted.
-    keep = (overlap >= np.maximum(cfg.min_region_px // 3, 0.2 * area)) & (area >= cfg.min_region_px)
+    # A region belongs to the object when a real part of it lies where the mesh was predicted,
+    # or when it fills most of the prediction: an object small in the image, touched by a hand
+    # or lying on something at its own depth, is a small part of a region that fills the search
+    # around it, and it is still there.
+    keep = ((overlap >= np.maximum(cfg.min_region_px // 3, 0.2 * area)) | (overlap >= 0.5 * pred.sum())) \
+        & (area >= cfg.min_region_px)
     if hidden_mask is not None:
         h, w = candidate.shape
         near_hidden = cv2.dilate(hidden_mask[y0:y0 + h, x0:x0 + w].astype(np.uint8), disc(cfg.search_margin_px)) > 0

@@ -200,6 +200,30 @@ def test_the_extent_does_not_run_through_what_cannot_be_the_object():
     assert np.array_equal(extent, segment.extent)
 
 
+def test_a_small_object_pressed_against_a_larger_one_is_still_found():
+    """A 24-pixel object (an object far away or small, 12 cm at 0.6 m) touched by a hand or
+    pressed by another object at its own depth: together they fill the search around the
+    prediction, of which the object is a small part. It is still there; colour tells it from
+    what touches it."""
+    rng = np.random.default_rng(0)
+    depth = np.full((H, W), 2.2, np.float32)
+    rgb = np.clip(rng.normal(120, 4, (H, W, 3)), 0, 255).astype(np.uint8)
+    toucher = np.zeros((H, W), bool)
+    toucher[60:200, 100:240] = True
+    obj = np.zeros((H, W), bool)
+    obj[110:134, 150:174] = True
+    depth[toucher | obj] = 0.6
+    rgb[toucher] = (60, 70, 200)
+    rgb[obj] = (220, 60, 80)
+    colour = ColourModel(rgb, obj)
+    predicted = np.roll(obj, 2, axis=1)  # last frame's mesh, a little off
+    segment = segment_tracked(depth, predicted, (0.59, 0.61), SegmentationConfig())
+    assert segment.mask[obj].mean() > 0.95  # found, with what touches it as far as the search reaches
+    segment = segment_tracked(depth, predicted, (0.59, 0.61), SegmentationConfig(), rgb=rgb, colour=colour)
+    assert segment.mask[obj].mean() > 0.8  # less its rim, where the colour model is less sure
+    assert (segment.mask & toucher & ~predicted).sum() < 0.05 * obj.sum()  # beyond the prediction's sliver
+
+
 def test_tracked_segmentation_empty_when_object_gone():
     depth, truth, _ = scene_depth(cloth=False)
     _, predicted, _ = scene_depth()

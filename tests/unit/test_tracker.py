@@ -293,6 +293,22 @@ def test_bad_input_messages(tex):
         TrackerConfig(features="harris")
 
 
+def test_flying_pixels_at_the_edge_do_not_tilt_the_first_mesh(tex):
+    """A real sensor mixes the object and the wall behind it along the object's edge: strips
+    of the mask read the wall, metres away. The mesh is still laid flat on the sheet, at its
+    size (least squares over all the mask's depths turned its plane edge-on to the camera)."""
+    f0 = render(plane_points(UV, CENTRE, SIZE), tex, 0, noise_m=0.0)
+    mask = f0.depth_m < 2.0
+    cols = np.flatnonzero(mask.any(axis=0))
+    depth = f0.depth_m.copy()
+    for edge in (cols[:3], cols[-3:]):
+        depth[:, edge] = np.where(mask[:, edge], 3.5, depth[:, edge])
+    e = MeshTracker(TrackerConfig()).initialise(RGBDFrame(f0.rgb, depth, CAM), mask=mask)
+    extent = np.ptp(e.canonical[:, :2], axis=0)
+    np.testing.assert_allclose(extent, SIZE, rtol=0.1)
+    assert np.abs(e.vertices[:, 2] - CENTRE[2]).max() < 0.02  # none lifted onto the wall
+
+
 def test_depth_dropouts_in_first_frame_leave_no_hole_in_the_mesh(tex):
     f0 = render(plane_points(UV, CENTRE, SIZE), tex, 0)
     depth = f0.depth_m.copy()
