@@ -129,6 +129,7 @@ def run_one(seq, masks: dict, flows: list, config: TrackerConfig, args, label: s
     pick = set(np.linspace(0, n - 1, min(n, args.strip_frames)).round().astype(int).tolist())
     tracker = MeshTracker(config)
     frames, tiles, kept = [], [], {}
+    previous = None
     crop = np.zeros((seq.camera.height, seq.camera.width), bool)
     flow_sources = {p.source for p in flows} | {p.target for p in flows}
     for i in tqdm(range(n), desc=label, unit="frame", disable=args.quiet, leave=False):
@@ -142,8 +143,12 @@ def run_one(seq, masks: dict, flows: list, config: TrackerConfig, args, label: s
         else:
             estimate = tracker.track(frame)
         K = frame.camera.K
+        # a new mesh: the tracker lost the object and laid another on it, its material points anew
+        new_mesh = previous is not None and not np.array_equal(estimate.canonical, previous)
+        previous = estimate.canonical
         record = dict(frame=i, timestamp_s=frame.timestamp_s, confidence=estimate.confidence,
-                      lost=bool(estimate.lost), timing_ms=estimate.timing_ms, coverage=None, on_mask=None)
+                      lost=bool(estimate.lost), new_mesh=new_mesh, timing_ms=estimate.timing_ms, coverage=None,
+                      on_mask=None)
         if i in masks:
             record["coverage"] = mask_coverage(estimate.vertices, estimate.faces, K, masks[i])
             record["on_mask"] = vertices_on_mask(estimate.vertices, K, masks[i], args.tolerance_px)
@@ -174,7 +179,8 @@ def summarise(run: dict) -> dict:
     conf = np.array([f["confidence"] for f in frames])
     timing = np.array([f["timing_ms"] for f in frames[1:]] or [frames[0]["timing_ms"]])
     out = dict(frames=len(frames), vertices=run["vertices"], frames_with_mask=len(cov),
-               lost_frames=int(sum(f["lost"] for f in frames)), confidence_mean=float(conf.mean()),
+               lost_frames=int(sum(f["lost"] for f in frames)), meshes=1 + sum(f["new_mesh"] for f in frames),
+               confidence_mean=float(conf.mean()),
                confidence_min=float(conf.min()), median_ms=float(np.median(timing)))
     if len(cov):
         ok = (cov >= TARGET_COVERAGE) & (onm >= TARGET_ON_MASK)
@@ -201,8 +207,8 @@ def table_row(name: str, preset: str, s: dict) -> str:
         flow = f"{f['error_mm']['mean']:.0f} (still {f['zero_motion_mm']['mean']:.0f})"
     meet = f"{s['frames_meeting_target']}/{s['frames_with_mask']}" if "frames_meeting_target" in s else "-"
     return (f"{name:26s} {preset:9s} {s['vertices']:5d} {fmt('coverage_min')} {fmt('coverage_mean')} "
-            f"{fmt('on_mask_min')} {fmt('on_mask_mean')} {meet:>7s} {s['lost_frames']:3d}/{s['frames']:<3d} "
-            f"{s['confidence_mean']:5.2f} {s['confidence_min']:5.2f} {s['median_ms']:7.1f}  {flow}")
+            f"{fmt('on_mask_min')} {fmt('on_mask_mean')} {meet:>7s} {s['lost_frames']:3d}/{s['frames']:<4d} "
+            f"{s['meshes']:6d} {s['confidence_mean']:5.2f} {s['confidence_min']:5.2f} {s['median_ms']:7.1f}  {flow}")
 
 
 def build_parser() -> OneLineParser:
@@ -270,9 +276,9 @@ def main(argv=None) -> int:
     print(f"machine: {report['machine']}; init: {args.init}; on_mask tolerance {args.tolerance_px:g} px; "
           f"overrides: {overrides or 'none'}")
     print(f"{'recording':26s} {'preset':9s} {'verts':>5s} {'cov':>5s} {'cov':>5s} {'on':>5s} {'on':>5s} "
-          f"{'target':>7s} {'lost':>7s} {'conf':>5s} {'conf':>5s} {'ms':>7s}  flow err mm")
+          f"{'target':>7s} {'lost':>8s} {'meshes':>6s} {'conf':>5s} {'conf':>5s} {'ms':>7s}  flow err mm")
     print(f"{'':26s} {'':9s} {'':5s} {'min':>5s} {'mean':>5s} {'min':>5s} {'mean':>5s} {'frames':>7s} "
-          f"{'':7s} {'mean':>5s} {'min':>5s} {'median':>7s}  mean (not moving)")
+          f"{'':8s} {'':6s} {'mean':>5s} {'min':>5s} {'median':>7s}  mean (not moving)")
     for row in rows:
         print(row)
     print(f"wrote {args.json} and pictures in {args.pictures}")

@@ -2,7 +2,7 @@
 
     python -m launch_scripts.convert_recording FORMAT SRC OUT [--sequence DIR] [--max-frames N]
 
-FORMAT is one of perception.recordings.FORMATS (deformable_tracking, deepdeform); SRC is a
+FORMAT is one of perception.recordings.FORMATS (deformable_tracking, deepdeform, rgbd_tracking); SRC is a
 folder or a bare git directory (read at HEAD); OUT is a new folder. Besides the sequence,
 OUT gets the dataset's reference masks, ground-truth flow and recording.json (see
 perception.recordings). Bad input ends with exit status 2 and one line naming the problem.
@@ -26,7 +26,8 @@ def build_parser() -> OneLineParser:
     p.add_argument("source", type=Path, help="the recording: a folder or a bare git directory")
     p.add_argument("output", type=Path, help="sequence folder to create")
     p.add_argument("--sequence", help="deepdeform: the sequence folder inside SRC (e.g. example_data/train/seq258), "
-                                      "needed when SRC holds several")
+                                      "needed when SRC holds several; rgbd_tracking: the image folder inside SRC "
+                                      "(default examples/images/imagesInteraction)")
     p.add_argument("--max-frames", type=positive_int, help="convert only the first N frames")
     p.add_argument("--quiet", "-q", action="store_true", help="no progress bar")
     add_log_level_argument(p)
@@ -38,8 +39,9 @@ def main(argv=None) -> int:
     configure_logging(args.log_level, "%(levelname)s %(name)s: %(message)s")
     options = {}
     if args.sequence is not None:
-        if args.format != "deepdeform":
-            print(f"error: --sequence applies to the deepdeform format, not {args.format}", file=sys.stderr)
+        if args.format not in ("deepdeform", "rgbd_tracking"):
+            print(f"error: --sequence applies to the deepdeform and rgbd_tracking formats, not {args.format}",
+                  file=sys.stderr)
             return 2
         options["sequence"] = args.sequence
     try:

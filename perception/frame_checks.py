@@ -27,8 +27,7 @@ import math
 import numpy as np
 
 from ipc.messages import CameraInfo, RGBDFrame
-from perception.geometry import backproject
-from perception.initial_mesh import object_depth, object_frame
+from perception.initial_mesh import InitialisationError, extent_points, object_depth, object_frame, object_points
 from perception.mesh import SQRT3_2
 
 #: Depth range of every RGB-D sensor with margin, metres: structured light and time of
@@ -116,16 +115,15 @@ def object_lattice_bound(frame: RGBDFrame, mask: np.ndarray, spacing_m: float) -
 
     frame : a frame that passed ``check_frame``
     mask : (H, W) bool, the object's pixels
-    returns an int >= 0 (0 when fewer than 3 pixels of the mask have depth)
+    returns an int >= 0 (0 when fewer than 30 pixels of the mask have depth: too few for a mesh)
     """
     depth = object_depth(frame.depth_m, mask)  # without flying pixels, as the tracker
-    rows, cols = np.nonzero(mask & (depth > 0))
-    if rows.size < 3:
+    K = frame.camera.K
+    try:
+        centre, u, v, normal = object_frame(object_points(depth, mask, K))
+    except InitialisationError:  # under the 30 pixels a mesh needs: the object is tiny
         return 0
-    step = max(1, rows.size // 20000)  # a plane fit needs no more points
-    rows, cols = rows[::step], cols[::step]
-    points = backproject(np.column_stack([cols, rows]).astype(np.float64), depth[rows, cols], frame.camera.K)
-    centre, u, v, _ = object_frame(points)
+    points = extent_points(frame.depth_m, depth, mask, K, centre, normal)
     extent_u, extent_v = np.ptp((points - centre) @ u), np.ptp((points - centre) @ v)
     # lattice_covering: rows SQRT3_2 * spacing apart, points spacing apart, one spacing of margin.
     return math.ceil((extent_u / spacing_m + 3.0) * (extent_v / (SQRT3_2 * spacing_m) + 3.0))

@@ -48,13 +48,34 @@ def object_depth(depth_m: np.ndarray, mask: np.ndarray) -> np.ndarray:
     return np.where(np.abs(depth - median) <= band, depth, 0.0)
 
 
-def _object_points(obs: Observation, depth: np.ndarray) -> np.ndarray:
-    ys, xs = np.nonzero(obs.mask & (depth > 0))
+def object_points(depth: np.ndarray, mask: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """(P, 3) camera-frame points of the object: the pixels of ``mask`` (H, W) bool where
+    ``depth`` (``object_depth``) has the object's depth, at most about 20000 of them."""
+    ys, xs = np.nonzero(mask & (depth > 0))
     if len(xs) < 30:
         raise InitialisationError(f"the object mask has {len(xs)} pixels with depth; at least 30 are needed")
     step = max(1, len(xs) // 20000)
     uv = np.column_stack([xs[::step], ys[::step]]).astype(np.float64)
-    return rays(uv, obs.K) * depth[ys[::step], xs[::step], None]
+    return rays(uv, K) * depth[ys[::step], xs[::step], None]
+
+
+def extent_points(depth_m: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: np.ndarray, centre: np.ndarray,
+                  normal: np.ndarray) -> np.ndarray:
+    """(P, 3) points giving the object's extent in its plane (``centre``, ``normal``): the
+    pixels of ``mask`` where the sensor measured a depth (``depth_m`` > 0), at the object's
+    depth (``depth``, ``object_depth``) where it has it, else where their ray meets the plane.
+    A flying pixel is still the object's pixel; only its depth is not."""
+    ys, xs = np.nonzero(mask & np.isfinite(depth_m) & (depth_m > 0))
+    step = max(1, len(xs) // 20000)
+    ys, xs = ys[::step], xs[::step]
+    r = rays(np.column_stack([xs, ys]).astype(np.float64), K)
+    z = depth[ys, xs].astype(np.float64)
+    facing = r @ normal
+    on_plane = np.abs(facing) > 1e-9
+    flying = (z <= 0) & on_plane
+    z[flying] = (normal @ centre) / facing[flying]
+    keep = (z > 0) | flying
+    return r[keep] * z[keep, None]
 
 
 def object_frame(points: np.ndarray):
@@ -122,7 +143,7 @@ def object_area_m2(obs: Observation) -> float:
         raise InitialisationError(f"the object mask has {len(xs)} pixels with depth; at least 30 are needed")
     z = depth[ys, xs].astype(np.float64)
     r = rays(np.column_stack([xs, ys]).astype(np.float64), obs.K)
-    _, _, _, n = object_frame(_object_points(obs, depth))
+    _, _, _, n = object_frame(object_points(depth, obs.mask, obs.K))
     facing = np.abs(r @ n) / np.linalg.norm(r, axis=1)  # cosine between each pixel's ray and the plane's normal
     return float(np.sum(z * z / (obs.K[0, 0] * obs.K[1, 1]) / np.maximum(facing, 0.2)))
 
@@ -169,8 +190,8 @@ def mesh_from_mask(obs: Observation, spacing_m: float) -> tuple[CanonicalMesh, n
     returns (mesh, vertices (N, 3) float64 metres in the camera frame)
     """
     depth = object_depth(obs.depth_m, obs.mask)
-    pts = _object_points(obs, depth)
-    c, u, v, _ = object_frame(pts)
+    c, u, v, n = object_frame(object_points(depth, obs.mask, obs.K))
+    pts = extent_points(obs.depth_m, depth, obs.mask, obs.K, c, n)
     pu, pv = (pts - c) @ u, (pts - c) @ v
     lat = lattice_covering((pu.min(), pu.max()), (pv.min(), pv.max()), spacing_m)
     xy = lattice_to_xy(lat, spacing_m)
@@ -192,7 +213,7 @@ def place_mesh(mesh: CanonicalMesh, obs: Observation) -> np.ndarray:
     returns (N, 3) float64 vertices in the camera frame, lifted onto the surface where seen
     """
     depth = object_depth(obs.depth_m, obs.mask)
-    pts = _object_points(obs, depth)
+    pts = object_points(depth, obs.mask, obs.K)
     c, u, v, _ = object_frame(pts)
     xy = mesh.material_xy - mesh.material_xy.mean(axis=0)
     obj_uv = np.column_stack([(pts - c) @ u, (pts - c) @ v])

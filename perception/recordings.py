@@ -18,7 +18,19 @@ Formats (``FORMATS``), each read by one function that returns a ``Recording``:
   ``optical_flow/...oflow`` (pixels), binary: three little-endian uint32 (width, height,
   channels), then float32 values in (channels, height, width) order, non-finite = unknown.
 
-Neither layout has timestamps: frame number n gets ``n / 30`` s (both sensors run at 30 Hz).
+- ``rgbd_tracking``: the ``examples/images/<sequence>`` folders of the public repository
+  agpetit/RGBDTracking (a SOFA plugin; ``imagesInteraction``: a person pushes, squeezes and
+  lifts a plush squirrel and a foam brain on a desk, 1000 frames of a DepthSense DS325 at
+  320x240): ``img1NNNNNN.png`` colour and ``depthfileNNNNNN.txt`` depth, binary despite
+  its name: three little-endian int32 (OpenCV type, 5 = float32; width; height), then float32
+  metres, NaN where unknown, registered to colour. Its ``depth1``/``depth2`` PNGs are 8-bit
+  pictures of the depth and are not read. The intrinsics are those its scene
+  ``examples/Tracking_RGBD_FEMDef.scn`` gives for these images, fx = fy = 275, cx = 160,
+  cy = 120 (``RGBD_TRACKING_K``). ``imgseg1NNNNNN.png`` is the authors' segmentation, of the
+  foam brain with the hand touching it; only frame 0's, where nothing touches the brain, is
+  taken as a reference mask (the brain's).
+
+None of the layouts has timestamps: frame number n gets ``n / 30`` s (the sensors run at 30 Hz).
 
 A source is a folder or a bare git directory (as the search tool's ``fetch`` leaves it);
 a git directory is read at its HEAD with ``git cat-file``, file by file, so a snapshot
@@ -63,6 +75,10 @@ log = logging.getLogger(__name__)
 
 FRAME_RATE_HZ = 30.0
 KINECT_V1_K = np.array([[525.0, 0.0, 319.5], [0.0, 525.0, 239.5], [0.0, 0.0, 1.0]])
+RGBD_TRACKING_K = np.array([[275.0, 0.0, 160.0], [0.0, 275.0, 120.0], [0.0, 0.0, 1.0]])
+RGBD_TRACKING_SIZE = (320, 240)
+#: OpenCV's type number of a single-channel float32 matrix
+CV_32F = 5
 MILLIMETRES_PER_METRE = 1000.0
 MASKS_DIR = "reference_masks"
 MASKS_INDEX = "reference_masks.json"
@@ -411,6 +427,61 @@ def read_deepdeform(tree: SourceTree, sequence: str | None = None) -> Recording:
     return Recording("deepdeform", camera, MILLIMETRES_PER_METRE, frames, masks, flows, provenance)
 
 
+# -- rgbd_tracking -------------------------------------------------------------------------
+
+
+def read_float_depth(data: bytes, camera: CameraInfo, where: str) -> np.ndarray:
+    """Depth of an RGBDTracking ``depthfile*.txt`` as uint16 millimetres (0: unknown)."""
+    if len(data) < 12:
+        raise RecordingError(f"{where}: expected a 12-byte header (type, width, height), got {len(data)} bytes")
+    kind, w, h = (int(v) for v in np.frombuffer(data[:12], "<i4"))
+    if kind != CV_32F:
+        raise RecordingError(f"{where}: expected OpenCV type {CV_32F} (float32), got {kind}")
+    if (w, h) != (camera.width, camera.height):
+        raise RecordingError(f"{where}: expected {camera.width}x{camera.height}, got {w}x{h}")
+    if len(data) < 12 + 4 * w * h:
+        raise RecordingError(f"{where}: expected {w}x{h} float32 values, got {(len(data) - 12) // 4}")
+    metres = np.frombuffer(data[12:12 + 4 * w * h], "<f4").reshape(h, w)
+    ok = np.isfinite(metres) & (metres > 0)
+    return np.where(ok, np.round(np.where(ok, metres, 0.0) * MILLIMETRES_PER_METRE), 0).clip(0, 65535).astype(np.uint16)
+
+
+def read_rgbd_tracking(tree: SourceTree, sequence: str | None = None) -> Recording:
+    """An ``examples/images/<sequence>`` folder of agpetit/RGBDTracking (see the module docstring).
+
+    sequence : the folder inside ``tree`` (default: ``examples/images/imagesInteraction`` when
+        the tree holds it, else the tree's top level)
+    """
+    folder = (sequence or "").strip("/")
+    if sequence is None and tree.under("examples/images/imagesInteraction"):
+        folder = "examples/images/imagesInteraction"
+    files = tree.under(folder)
+    colour = _numbered(files, r"img1(\d+)\.png", tree.where(_join(folder, "")))
+    depth = _numbered(files, r"depthfile(\d+)\.txt", tree.where(_join(folder, "")))
+    numbers = _pair_numbers(colour, depth, tree)
+    camera = CameraInfo(width=RGBD_TRACKING_SIZE[0], height=RGBD_TRACKING_SIZE[1], K=RGBD_TRACKING_K)
+
+    def loader(n: int):
+        def load():
+            rgb = _check_size(_decode_image(tree.read(colour[n]), tree.where(colour[n]), depth=False),
+                              camera, tree.where(colour[n]))
+            return rgb, read_float_depth(tree.read(depth[n]), camera, tree.where(depth[n]))
+        return load
+
+    masks = {}
+    first_mask = _join(folder, f"imgseg1{numbers[0]:06d}.png")
+    if first_mask in tree.files:
+        masks[0] = _decode_mask(tree.read(first_mask), camera, tree.where(first_mask))
+    frames = [SourceFrame(n, n / FRAME_RATE_HZ, loader(n)) for n in numbers]
+    provenance = dict(
+        sequence=folder or ".",
+        depth_units="millimetres, rounded from the source's float32 metres, registered to colour",
+        intrinsics="fx=fy=275, cx=160, cy=120, from the source's examples/Tracking_RGBD_FEMDef.scn",
+        annotated_mask="frame 0's imgseg (the authors' segmentation: the foam brain, nothing touching it)",
+        timestamps=f"nominal: frame number / {FRAME_RATE_HZ:g} Hz (the source has none)")
+    return Recording("rgbd_tracking", camera, MILLIMETRES_PER_METRE, frames, masks, provenance=provenance)
+
+
 def _decode_mask(data: bytes, camera: CameraInfo, where: str) -> np.ndarray:
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if img is None:
@@ -423,6 +494,7 @@ def _decode_mask(data: bytes, camera: CameraInfo, where: str) -> np.ndarray:
 FORMATS: dict[str, Callable[..., Recording]] = {
     "deformable_tracking": read_deformable_tracking,
     "deepdeform": read_deepdeform,
+    "rgbd_tracking": read_rgbd_tracking,
 }
 
 

@@ -413,7 +413,7 @@ def fit_plane_ransac(points: np.ndarray, tol: float, rng: np.random.Generator, i
     return n[i], d[i], int(inl.sum())
 
 
-def _touches_border(mask: np.ndarray) -> int:
+def touches_border(mask: np.ndarray) -> int:
     """How many of the image's four sides ``mask`` reaches: comes within a band of 3 % of the
     image (16 px or more) of, since a sensor's depth often stops short of the edges (a
     registered Kinect image has no depth in its first dozen columns)."""
@@ -449,7 +449,7 @@ def find_object(depth_m: np.ndarray, K: np.ndarray, cfg: SegmentationConfig = Se
         plane[vv[inl], uu[inl]] = True
         # A support plane is large and runs off the image; a flat poster filling the
         # middle of the view is not background.
-        if _touches_border(plane) < 2:
+        if touches_border(plane) < 2:
             break
         background |= plane
         remaining[inl] = False
@@ -461,7 +461,7 @@ def find_object(depth_m: np.ndarray, K: np.ndarray, cfg: SegmentationConfig = Se
         area = stats[i, cv2.CC_STAT_AREA]
         if area < cfg.min_region_px or area <= best_area:
             continue
-        if _touches_border(labels == i) > 2:
+        if touches_border(labels == i) > 2:
             continue
         best, best_area = i, area
     if best == 0:

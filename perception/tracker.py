@@ -90,6 +90,7 @@ from perception.segmentation import (
     find_object,
     object_extent,
     segment_tracked,
+    touches_border,
     valid_depth,
 )
 from perception.solver import METHODS, SemiImplicitSolver
@@ -110,6 +111,13 @@ FOLD_MARGIN_MIN_M = 0.005
 #: rejects, keeps its mesh for this many lost frames before it builds a new one on the object
 #: segmented again (a new mesh loses the material coordinates; a frame or two of bad data pass)
 KEEP_MESH_LOST_FRAMES = 3
+
+#: The least area, as a share of the mesh first laid, of an object segmented afresh for a new
+#: mesh: a cloth folds, so less of it may show (``PARTIAL_AREA``); but an object the image's
+#: border cuts shows only what is in view, and a mesh laid on that part would stay a part after
+#: the object came back into view (a cloth carried out of view and back kept a mesh on the
+#: sixth of it that stayed in view), so it needs ``CUT_AREA``
+PARTIAL_AREA, CUT_AREA = 0.15, 0.8
 
 #: Frames whose segmented object an object too near the camera to measure must mostly cover to
 #: be taken for one (``perception.occluders``): a third of a second at 30 Hz, time for a hand
@@ -779,15 +787,16 @@ class MeshTracker:
         mask = self._object_only(mask, frame)
         if not mask.any():
             return None
-        # A cloth folds, so less of it may show, but it does not grow: a far larger surface
-        # of the right colour (a wall, the floor) is not the object.
+        # Less of a cloth may show (``PARTIAL_AREA``, ``CUT_AREA``), but it does not grow: a far
+        # larger surface of the right colour (a wall, the floor) is not the object.
         try:
             area = object_area_m2(observe(frame, mask, cfg.depth_window_px))
         except InitialisationError:
             return None
         # Measured against the mesh first laid, not one built since on a part of the cloth.
         rest = self._cloth_area_m2
-        if not 0.15 * rest <= area <= 1.5 * rest:
+        least = CUT_AREA if touches_border(mask) else PARTIAL_AREA
+        if not least * rest <= area <= 1.5 * rest:
             log.debug("frame %d: segmented object of %.3f m^2 against the cloth's %.3f m^2: not it", frame.seq, area, rest)
             return None
         saved = dict(self.__dict__)

@@ -36,8 +36,10 @@ def test_scores_a_tracked_sheet_and_writes_json_and_pictures(data, tmp_path, cap
     assert run["config"]["spacing_m"] == 0.05 and run["config"]["features"] == "klt"
     s = run["summary"]
     assert s["frames"] == 4 and s["frames_with_mask"] == 4 and s["lost_frames"] == 0
-    # the mesh keeps its size (stretch term) and follows the sheet to about a frame's motion (3 px)
-    assert s["coverage_min"] > 0.9 and s["on_mask_min"] > 0.9 and s["frames_meeting_target"] == 4
+    # the mesh follows the sheet to about a frame's motion (3 px) and keeps its size: every
+    # vertex stays on the sheet (a mesh laid with the rim's background pixels as the sheet's
+    # grew past it, 7 % of its vertices off the sheet by the last frame)
+    assert s["coverage_min"] > 0.85 and s["on_mask_min"] > 0.97 and s["frames_meeting_target"] == 4
     assert [f["frame"] for f in run["frames"]] == [0, 1, 2, 3]
     assert Path(run["picture"]).is_file()
     assert "sheet" in capsys.readouterr().out

@@ -2,6 +2,7 @@
 samples written here in each source format: exact frames, units, intrinsics and ground truth."""
 
 import json
+import re
 import shutil
 import subprocess
 
@@ -196,3 +197,44 @@ def test_refuses_to_overwrite_and_unknown_formats(tmp_path, capsys):
         main(["vicon", str(src), str(tmp_path / "o2")])
     assert stop.value.code == 2
     assert main(["deformable_tracking", str(src), str(tmp_path / "o3"), "--sequence", "x", "-q"]) == 2
+
+
+def write_rgbd_tracking(folder, n=2, kind=5, truncate=False):
+    """agpetit/RGBDTracking's image folder: img1NNNNNN.png, depthfileNNNNNN.txt (int32 type,
+    width, height, float32 metres, NaN unknown) and the authors' segmentation imgseg1NNNNNN.png."""
+    folder.mkdir(parents=True)
+    for k in range(n):
+        cv2.imwrite(str(folder / f"img1{k:06d}.png"), _colour(k)[:240, :320])
+        metres = _depth_mm(k)[:240, :320].astype(np.float32) / 1000.0
+        metres[metres == 0] = np.nan
+        data = np.array([kind, 320, 240], "<i4").tobytes() + metres.astype("<f4").tobytes()
+        (folder / f"depthfile{k:06d}.txt").write_bytes(data[:-8] if truncate else data)
+        seg = np.zeros((240, 320, 4), np.uint8)
+        seg[150:200, 130 + 10 * k:200] = 3  # the authors' masks are 4-channel, small non-zero values
+        cv2.imwrite(str(folder / f"imgseg1{k:06d}.png"), seg)
+
+
+def test_rgbd_tracking_float_depth_intrinsics_and_first_mask(tmp_path):
+    write_rgbd_tracking(tmp_path / "repo" / "examples" / "images" / "imagesInteraction")
+    out = tmp_path / "seq"
+    assert main(["rgbd_tracking", str(tmp_path / "repo"), str(out), "-q"]) == 0
+    seq = open_sequence(out)
+    assert len(seq) == 2 and seq.depth_scale == 1000.0
+    np.testing.assert_array_equal(seq.camera.K, [[275.0, 0.0, 160.0], [0.0, 275.0, 120.0], [0.0, 0.0, 1.0]])
+    for k in range(2):
+        frame = seq.frame(k)
+        np.testing.assert_array_equal(frame.rgb, cv2.cvtColor(_colour(k)[:240, :320], cv2.COLOR_BGR2RGB))
+        np.testing.assert_array_equal(np.rint(frame.depth_m * 1000).astype(np.uint16), _depth_mm(k)[:240, :320])
+    masks = read_reference_masks(seq)
+    assert list(masks) == [0] and masks[0].sum() == 50 * 70  # frame 0's only: later ones hold the hand too
+
+
+@pytest.mark.parametrize("spoil,message", [
+    ("kind", "expected OpenCV type 5 (float32), got 6"),
+    ("truncated", "expected 320x240 float32 values, got 76798"),
+])
+def test_bad_rgbd_tracking_depth_is_named(tmp_path, spoil, message):
+    write_rgbd_tracking(tmp_path / "src", kind=6 if spoil == "kind" else 5, truncate=spoil == "truncated")
+    recording = read_recording("rgbd_tracking", tmp_path / "src")
+    with pytest.raises(RecordingError, match=r"depthfile000000\.txt: " + re.escape(message)):
+        recording.frames[0].load()

@@ -427,6 +427,25 @@ def test_the_cloth_found_again_is_measured_against_the_cloth_first_laid(tex):
     assert again is not None and tracker.reacquisitions == 2
     assert tracker._mesh_area_m2() > 0.8 * whole
 
+@pytest.mark.parametrize("textured", [True, False])
+def test_a_sheet_carried_out_of_view_and_back_is_tracked_whole_again(tex, textured):
+    """Carried sideways out of the image and back. While only a strip of it shows, no new mesh
+    is laid on the strip: it would stay a strip once the sheet was back, at a confidence
+    neither lost nor trusted. Back in view, the sheet is found again whole."""
+    cloth = tex if textured else texture(np.random.default_rng(0), textured=False)
+    xs = [0.0, 0.15, 0.3, 0.45, 0.6, 0.75, 0.9, 1.2, 1.2, 0.9, 0.75, 0.6, 0.45, 0.3, 0.15, 0.0, 0.0, 0.0, 0.0]
+    frames = [sheet(np.array([x, 0.0, 0.0]), cloth, k) for k, x in enumerate(xs)]
+    tracker = MeshTracker(TrackerConfig(features="klt"))
+    tracker.initialise(frames[0])
+    whole = tracker._mesh_area_m2()
+    for frame in frames[1:]:
+        e = tracker.track(frame)
+    assert not e.lost and e.confidence >= 0.5
+    assert tracker._mesh_area_m2() > 0.8 * whole
+    assert np.abs(e.vertices[:, 2] - CENTRE[2]).max() < 0.02
+    assert np.abs(e.vertices[:, 0]).max() < SIZE[0] / 2 + 0.02
+
+
 def test_a_print_is_not_found_again_on_a_plain_surface_of_its_colour_unless_the_arms_are_masked(tex):
     """The printed sheet gone, and a plain surface of its ground colour beside where it was (a
     robot's arm, a hand, or the cloth's unprinted back): a mesh built on it learns its appearance
