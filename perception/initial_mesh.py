@@ -71,10 +71,9 @@ def extent_points(depth_m: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: n
     r = rays(np.column_stack([xs, ys]).astype(np.float64), K)
     z = depth[ys, xs].astype(np.float64)
     facing = r @ normal
-    on_plane = np.abs(facing) > 1e-9
-    flying = (z <= 0) & on_plane
+    flying = (z <= 0) & (np.abs(facing) > 1e-9)
     z[flying] = (normal @ centre) / facing[flying]
-    keep = (z > 0) | flying
+    keep = z > 0  # a ray that meets the plane behind the camera gives no extent
     return r[keep] * z[keep, None]
 
 

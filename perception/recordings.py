@@ -253,11 +253,17 @@ def read_opencv_yaml_matrix(data: bytes, key: str, where: str) -> np.ndarray:
     return mat
 
 
+def _header(data: bytes, dtype: str, where: str) -> tuple[int, int, int]:
+    """The three 4-byte integers (``dtype``, e.g. ``"<u4"``) a binary image file starts with."""
+    if len(data) < 12:
+        raise RecordingError(f"{where}: too short for its 12-byte header ({len(data)} bytes)")
+    a, b, c = (int(v) for v in np.frombuffer(data[:12], dtype))
+    return a, b, c
+
+
 def read_binary_flow(data: bytes, channels: int, camera: CameraInfo, where: str) -> np.ndarray:
     """A DeepDeform ``.sflow``/``.oflow`` image as (H, W, channels) float32, NaN where unknown."""
-    if len(data) < 12:
-        raise RecordingError(f"{where}: too short for a flow header ({len(data)} bytes)")
-    width, height, got = (int(v) for v in np.frombuffer(data[:12], "<u4"))
+    width, height, got = _header(data, "<u4", where)
     if got != channels:
         raise RecordingError(f"{where}: expected {channels} channels, the header says {got}")
     if (width, height) != (camera.width, camera.height):
@@ -432,9 +438,7 @@ def read_deepdeform(tree: SourceTree, sequence: str | None = None) -> Recording:
 
 def read_float_depth(data: bytes, camera: CameraInfo, where: str) -> np.ndarray:
     """Depth of an RGBDTracking ``depthfile*.txt`` as uint16 millimetres (0: unknown)."""
-    if len(data) < 12:
-        raise RecordingError(f"{where}: expected a 12-byte header (type, width, height), got {len(data)} bytes")
-    kind, w, h = (int(v) for v in np.frombuffer(data[:12], "<i4"))
+    kind, w, h = _header(data, "<i4", where)
     if kind != CV_32F:
         raise RecordingError(f"{where}: expected OpenCV type {CV_32F} (float32), got {kind}")
     if (w, h) != (camera.width, camera.height):

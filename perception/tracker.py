@@ -830,7 +830,9 @@ class MeshTracker:
         phase correlation measures around it (``perception.coarse``), each scored by how well
         the vertices seen in the last frame agree with the new one; when none agrees well, also
         the last good estimate placed by global registration (``perception.registration``).
-        A hypothesis other than ``V_pred`` must score clearly better to be taken."""
+        A hypothesis other than ``V_pred`` must score clearly better to be taken, and none is
+        that would put the mesh on something come in front of the cloth
+        (``_onto_what_came_in_front``)."""
         K = frame.camera.K
         uv_prev = project(self._V, K)
         seen = np.all(np.isfinite(uv_prev), axis=1) & (self._visible if self._visible is not None else True)
@@ -853,7 +855,11 @@ class MeshTracker:
         box = (max(0.0, v.min()), min(h, v.max() + 1), max(0.0, u.min()), min(w, u.max() + 1))
         found = self._memory.translation(small, box)
         if found is not None and found[1] > MIN_RESPONSE:
-            hypotheses["translation"] = self._translated(uv_prev, seen, found[0], frame)
+            moved = self._translated(uv_prev, seen, found[0], frame)
+            if self._onto_what_came_in_front(moved, uv_prev, seen, frame):
+                log.debug("frame %d: the translation measured is of something come in front; not taken", frame.seq)
+            else:
+                hypotheses["translation"] = moved
         for name in hypotheses.keys() - scores.keys():
             scores[name] = self._support(hypotheses[name], small, frame, uv_prev, seen)
         if max(scores.values()) < 0.5 and self._registration is not None:
@@ -861,9 +867,10 @@ class MeshTracker:
             occluder = frame.occluder_mask
             found = self._registration.register(grey_of(frame), frame.depth_m, self._good_V, self.mesh.faces, K,
                                                 None if occluder is None else ~occluder)
-            if found is not None:
-                hypotheses["registration"] = found.apply(self._good_V)
-                scores["registration"] = self._support(hypotheses["registration"], small, frame, uv_prev, seen)
+            placed = None if found is None else found.apply(self._good_V)
+            if placed is not None and not self._onto_what_came_in_front(placed, uv_prev, seen, frame):
+                hypotheses["registration"] = placed
+                scores["registration"] = self._support(placed, small, frame, uv_prev, seen)
         best = max(scores, key=scores.get)
         if best == "velocity" or scores[best] < scores["velocity"] + 0.03:
             return V_pred
@@ -885,6 +892,20 @@ class MeshTracker:
         typical = float(np.median(dz[measured])) if measured.any() else 0.0
         dz = np.where(measured & (np.abs(dz - typical) < self.config.depth_outlier_m), dz, typical)
         return rays(np.where(np.isfinite(uv_new), uv_new, 0.0), K) * (self._V[:, 2] + dz)[:, None]
+
+    def _onto_what_came_in_front(self, V: np.ndarray, uv_prev: np.ndarray, seen: np.ndarray, frame: RGBDFrame) -> bool:
+        """True when most of the vertices seen in the last frame are hidden now where they were,
+        behind a surface nearer than them by more than ``occlusion_margin_m``, and ``V`` (N, 3)
+        brings them that much nearer: something came in front of the cloth, and a hypothesis
+        that puts the mesh there has it on that thing (phase correlation measured the board
+        sliding in before a cloth and read its depth where the moved mesh landed, 36 cm off; a
+        registration matched a few points and placed the mesh halfway)."""
+        margin = self.config.occlusion_margin_m
+        h, w = frame.depth_m.shape
+        cols, rows, inside = pixel_index(uv_prev[seen], w, h)
+        d = frame.depth_m[rows, cols]
+        covered = inside & np.isfinite(d) & (d > 0) & (d < self._V[seen, 2] - margin)
+        return covered.mean() > 0.5 and float(np.median(V[seen, 2] - self._V[seen, 2])) < -margin
 
     def _support(self, V: np.ndarray, small: np.ndarray, frame: RGBDFrame, uv_prev: np.ndarray, seen: np.ndarray) -> float:
         """How well ``V`` (N, 3) explains the frame, in [0, 1]: the fraction of the vertices

@@ -236,6 +236,27 @@ def test_the_motion_of_an_object_in_front_is_not_taken_for_the_cloths(preset, an
     assert max(errors) < 0.005, [round(1000 * x, 1) for x in errors]
 
 
+def test_a_board_sliding_in_before_the_whole_sheet_does_not_carry_the_mesh_onto_it(tex):
+    """A printed board 35 cm in front of a still sheet slides in over it, 120 px a frame, until
+    it hides all of it. The coarse stage measures the board's motion (its print is what moves),
+    and read where the moved mesh lands, the depth change is the board's: the mesh was carried
+    onto the board, 35 cm off. Most of the sheet hidden where it was, behind something that
+    near, that motion is the board's, and the mesh stays where the sheet is."""
+    import cv2
+
+    rng = np.random.default_rng(5)
+    board = cv2.normalize(cv2.GaussianBlur(rng.integers(0, 256, (480, 640, 3), dtype=np.uint8), (0, 0), 4),
+                          None, 40, 230, cv2.NORM_MINMAX)
+    tracker = MeshTracker(TrackerConfig())
+    tracker.initialise(sheet(np.zeros(3), tex, 0))
+    for k, edge in enumerate((120, 240, 360, 480, 600, 640, 640), start=1):
+        frame = sheet(np.zeros(3), tex, k)
+        frame.rgb[:, :edge] = board[:, 640 - edge:]
+        frame.depth_m[:, :edge] = CENTRE[2] - 0.35
+        e = tracker.track(frame)
+        assert np.abs(e.vertices[:, 2] - CENTRE[2]).max() < 0.05, (k, float(e.vertices[:, 2].mean()))
+
+
 def test_an_occluder_coming_over_the_edge_does_not_drag_the_outline_with_it(tex):
     """A bar 40 cm in front of a still sheet comes slowly in over its left edge and covers a
     quarter of it; the sensor loses the depth in a 6-pixel band around the bar, as real ones
