@@ -899,7 +899,10 @@ class MeshTracker:
         brings them that much nearer: something came in front of the cloth, and a hypothesis
         that puts the mesh there has it on that thing (phase correlation measured the board
         sliding in before a cloth and read its depth where the moved mesh landed, 36 cm off; a
-        registration matched a few points and placed the mesh halfway)."""
+        registration matched a few points and placed the mesh halfway). Never after a lost
+        frame: a mesh lost may lie on the wall behind, and what is nearer is then the cloth."""
+        if self.lost_streak:
+            return False
         margin = self.config.occlusion_margin_m
         h, w = frame.depth_m.shape
         cols, rows, inside = pixel_index(uv_prev[seen], w, h)

@@ -201,10 +201,9 @@ def test_the_extent_does_not_run_through_what_cannot_be_the_object():
 
 
 def test_a_small_object_pressed_against_a_larger_one_is_still_found():
-    """A 24-pixel object (an object far away or small, 12 cm at 0.6 m) touched by a hand or
-    pressed by another object at its own depth: together they fill the search around the
-    prediction, of which the object is a small part. It is still there; colour tells it from
-    what touches it."""
+    """An object 24 pixels wide (a small one, or one far away) touched by a hand or pressed by
+    another object at its own depth: together they fill the search around the prediction, of
+    which the object is a small part. It is still there; colour tells it from what touches it."""
     rng = np.random.default_rng(0)
     depth = np.full((H, W), 2.2, np.float32)
     rgb = np.clip(rng.normal(120, 4, (H, W, 3)), 0, 255).astype(np.uint8)
