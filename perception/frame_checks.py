@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 from ipc.messages import CameraInfo, RGBDFrame
-from perception.initial_mesh import InitialisationError, extent_points, object_depth, object_frame, object_points
+from perception.initial_mesh import InitialisationError, object_plane
 from perception.mesh import SQRT3_2
 
 #: Depth range of every RGB-D sensor with margin, metres: structured light and time of
@@ -117,13 +117,10 @@ def object_lattice_bound(frame: RGBDFrame, mask: np.ndarray, spacing_m: float) -
     mask : (H, W) bool, the object's pixels
     returns an int >= 0 (0 when fewer than 30 pixels of the mask have depth: too few for a mesh)
     """
-    depth = object_depth(frame.depth_m, mask)  # without flying pixels, as the tracker
-    K = frame.camera.K
     try:
-        centre, u, v, normal = object_frame(object_points(depth, mask, K))
+        _, (centre, u, v, _), points = object_plane(frame.depth_m, mask, frame.camera.K)  # as the tracker lays it
     except InitialisationError:  # under the 30 pixels a mesh needs: the object is tiny
         return 0
-    points = extent_points(frame.depth_m, depth, mask, K, centre, normal)
     extent_u, extent_v = np.ptp((points - centre) @ u), np.ptp((points - centre) @ v)
     # lattice_covering: rows SQRT3_2 * spacing apart, points spacing apart, one spacing of margin.
     return math.ceil((extent_u / spacing_m + 3.0) * (extent_v / (SQRT3_2 * spacing_m) + 3.0))

@@ -59,8 +59,18 @@ def object_points(depth: np.ndarray, mask: np.ndarray, K: np.ndarray) -> np.ndar
     return rays(uv, K) * depth[ys[::step], xs[::step], None]
 
 
-def extent_points(depth_m: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: np.ndarray, centre: np.ndarray,
-                  normal: np.ndarray) -> np.ndarray:
+def object_plane(depth_m: np.ndarray, mask: np.ndarray, K: np.ndarray) -> tuple[np.ndarray, tuple, np.ndarray]:
+    """What a mesh is laid from, for the object under ``mask`` (H, W) bool in ``depth_m`` (H, W):
+    its depth (``object_depth``), the frame of the plane fitted to its points (``object_frame``:
+    centre, u, v, normal) and the points giving its extent in that plane (``_extent_points``).
+    Raises InitialisationError when fewer than 30 of its pixels have the object's depth."""
+    depth = object_depth(depth_m, mask)
+    c, u, v, n = object_frame(object_points(depth, mask, K))
+    return depth, (c, u, v, n), _extent_points(depth_m, depth, mask, K, c, n)
+
+
+def _extent_points(depth_m: np.ndarray, depth: np.ndarray, mask: np.ndarray, K: np.ndarray, centre: np.ndarray,
+                   normal: np.ndarray) -> np.ndarray:
     """(P, 3) points giving the object's extent in its plane (``centre``, ``normal``): the
     pixels of ``mask`` where the sensor measured a depth (``depth_m`` > 0), at the object's
     depth (``depth``, ``object_depth``) where it has it, else where their ray meets the plane.
@@ -188,9 +198,7 @@ def mesh_from_mask(obs: Observation, spacing_m: float) -> tuple[CanonicalMesh, n
 
     returns (mesh, vertices (N, 3) float64 metres in the camera frame)
     """
-    depth = object_depth(obs.depth_m, obs.mask)
-    c, u, v, n = object_frame(object_points(depth, obs.mask, obs.K))
-    pts = extent_points(obs.depth_m, depth, obs.mask, obs.K, c, n)
+    depth, (c, u, v, _), pts = object_plane(obs.depth_m, obs.mask, obs.K)
     pu, pv = (pts - c) @ u, (pts - c) @ v
     lat = lattice_covering((pu.min(), pu.max()), (pv.min(), pv.max()), spacing_m)
     xy = lattice_to_xy(lat, spacing_m)

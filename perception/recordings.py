@@ -447,7 +447,7 @@ def read_float_depth(data: bytes, camera: CameraInfo, where: str) -> np.ndarray:
         raise RecordingError(f"{where}: expected {w}x{h} float32 values, got {(len(data) - 12) // 4}")
     metres = np.frombuffer(data[12:12 + 4 * w * h], "<f4").reshape(h, w)
     ok = np.isfinite(metres) & (metres > 0)
-    return np.where(ok, np.round(np.where(ok, metres, 0.0) * MILLIMETRES_PER_METRE), 0).clip(0, 65535).astype(np.uint16)
+    return np.round(np.where(ok, metres, 0.0) * MILLIMETRES_PER_METRE).clip(0, 65535).astype(np.uint16)
 
 
 def read_rgbd_tracking(tree: SourceTree, sequence: str | None = None) -> Recording:

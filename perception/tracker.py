@@ -832,7 +832,7 @@ class MeshTracker:
         the last good estimate placed by global registration (``perception.registration``).
         A hypothesis other than ``V_pred`` must score clearly better to be taken, and none is
         that would put the mesh on something come in front of the cloth
-        (``_onto_what_came_in_front``)."""
+        (``_came_in_front``, ``_brought_nearer``)."""
         K = frame.camera.K
         uv_prev = project(self._V, K)
         seen = np.all(np.isfinite(uv_prev), axis=1) & (self._visible if self._visible is not None else True)
@@ -853,10 +853,11 @@ class MeshTracker:
         h, w = frame.depth_m.shape
         u, v = uv_prev[seen].T
         box = (max(0.0, v.min()), min(h, v.max() + 1), max(0.0, u.min()), min(w, u.max() + 1))
+        in_front = self._came_in_front(seen, frame)
         found = self._memory.translation(small, box)
         if found is not None and found[1] > MIN_RESPONSE:
             moved = self._translated(uv_prev, seen, found[0], frame)
-            if self._onto_what_came_in_front(moved, uv_prev, seen, frame):
+            if in_front and self._brought_nearer(moved, seen):
                 log.debug("frame %d: the translation measured is of something come in front; not taken", frame.seq)
             else:
                 hypotheses["translation"] = moved
@@ -868,7 +869,7 @@ class MeshTracker:
             found = self._registration.register(grey_of(frame), frame.depth_m, self._good_V, self.mesh.faces, K,
                                                 None if occluder is None else ~occluder)
             placed = None if found is None else found.apply(self._good_V)
-            if placed is not None and not self._onto_what_came_in_front(placed, uv_prev, seen, frame):
+            if placed is not None and not (in_front and self._brought_nearer(placed, seen)):
                 hypotheses["registration"] = placed
                 scores["registration"] = self._support(placed, small, frame, uv_prev, seen)
         best = max(scores, key=scores.get)
@@ -893,22 +894,23 @@ class MeshTracker:
         dz = np.where(measured & (np.abs(dz - typical) < self.config.depth_outlier_m), dz, typical)
         return rays(np.where(np.isfinite(uv_new), uv_new, 0.0), K) * (self._V[:, 2] + dz)[:, None]
 
-    def _onto_what_came_in_front(self, V: np.ndarray, uv_prev: np.ndarray, seen: np.ndarray, frame: RGBDFrame) -> bool:
-        """True when most of the vertices seen in the last frame are hidden now where they were,
-        behind a surface nearer than them by more than ``occlusion_margin_m``, and ``V`` (N, 3)
-        brings them that much nearer: something came in front of the cloth, and a hypothesis
-        that puts the mesh there has it on that thing (phase correlation measured the board
+    def _came_in_front(self, seen: np.ndarray, frame: RGBDFrame) -> bool:
+        """True when most of the vertices ``seen`` (N,) bool in the last frame are hidden now
+        where they were, behind a surface nearer than them by more than ``occlusion_margin_m``:
+        something came in front of the cloth, and a hypothesis that brings the mesh that much
+        nearer (``_brought_nearer``) has it on that thing (phase correlation measured a board
         sliding in before a cloth and read its depth where the moved mesh landed, 36 cm off; a
         registration matched a few points and placed the mesh halfway). Never after a lost
         frame: a mesh lost may lie on the wall behind, and what is nearer is then the cloth."""
         if self.lost_streak:
             return False
-        margin = self.config.occlusion_margin_m
-        h, w = frame.depth_m.shape
-        cols, rows, inside = pixel_index(uv_prev[seen], w, h)
-        d = frame.depth_m[rows, cols]
-        covered = inside & np.isfinite(d) & (d > 0) & (d < self._V[seen, 2] - margin)
-        return covered.mean() > 0.5 and float(np.median(V[seen, 2] - self._V[seen, 2])) < -margin
+        state = classify_vertices(self._V[seen], frame.depth_m, frame.camera.K, self.config.occlusion_margin_m)
+        return float(np.mean(state == OCCLUDED)) > 0.5
+
+    def _brought_nearer(self, V: np.ndarray, seen: np.ndarray) -> bool:
+        """True when ``V`` (N, 3) brings the vertices ``seen`` nearer than the last estimate by
+        more than ``occlusion_margin_m`` (median)."""
+        return float(np.median(V[seen, 2] - self._V[seen, 2])) < -self.config.occlusion_margin_m
 
     def _support(self, V: np.ndarray, small: np.ndarray, frame: RGBDFrame, uv_prev: np.ndarray, seen: np.ndarray) -> float:
         """How well ``V`` (N, 3) explains the frame, in [0, 1]: the fraction of the vertices
