@@ -17,6 +17,7 @@ import sys
 import threading
 from pathlib import Path
 
+import launch_scripts
 from ipc.endpoints import check_endpoint, is_loopback
 
 
@@ -26,6 +27,10 @@ class OneLineParser(argparse.ArgumentParser):
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message}\n")
+
+    def parse_known_args(self, args=None, namespace=None):
+        launch_scripts.loaded()  # a command parses its arguments once its modules have loaded
+        return super().parse_known_args(args, namespace)
 
 
 #: The levels of ``--log-level``.

@@ -47,6 +47,33 @@ def test_ctrl_c_while_a_command_loads_is_one_line_too(tmp_path):
     assert child.returncode in (130, -signal.SIGINT), child.returncode  # the shell's 130 either way
 
 
+def test_ctrl_c_a_library_swallows_while_loading_still_interrupts_the_command():
+    import signal
+    import subprocess
+    import sys
+
+    # A library that catches everything while it loads (numpy.random's compiled module does, for a
+    # moment) must not make the command run on as if Ctrl-C had not been pressed.
+    script = """
+import os, signal, sys, time
+sys.argv = ["-m"]
+import launch_scripts
+try:  # a library loading, which swallows the KeyboardInterrupt
+    os.kill(os.getpid(), signal.SIGINT)
+    time.sleep(1)
+except BaseException:
+    pass
+from launch_scripts.cli import OneLineParser
+OneLineParser().parse_args([])
+print("ran on")
+"""
+    child = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
+                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    assert "ran on" not in child.stdout
+    assert child.stderr.strip() == "interrupted", child.stderr
+    assert child.returncode == -signal.SIGINT
+
+
 def test_track_demo_describes_every_option(capsys):
     from launch_scripts.track_demo import build_parser
 
