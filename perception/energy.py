@@ -317,8 +317,9 @@ class OutsideTerm:
     is a boundary vertex near the outline, no other pull: the part of a mesh left behind
     stays behind, held only by the stretch of its edges. This pulls every such vertex to
     the object's outline; a vertex hidden behind something nearer is not seen and not pulled.
-    Nor is one on a pixel without measured depth: the segmentation may have missed the cloth
-    there (a part of the table's colour, seen at a grazing angle, loses its depth).
+    Nor is one on a pixel without measured depth (``measured``): the segmentation may have
+    missed the cloth there (a part of the table's colour, seen at a grazing angle, loses its
+    depth), unless nothing there had depth before (the tracker's ``_open``).
 
     With ``free_space_m``, only the vertices the camera sees past are pulled: those whose
     pixel shows a surface more than ``free_space_m`` behind them in ``depth_m``. Nothing can
@@ -331,7 +332,8 @@ class OutsideTerm:
     outline_points : (P, 3) float64 metres, the object's outline in 3D
     mask : (H, W) bool object mask; K : (3, 3)
     vertex_mask : (N,) bool, the vertices seen (the only ones the term may pull)
-    measured : (H, W) bool, the pixels with measured depth, or None for all
+    measured : (H, W) bool, the pixels a seen vertex may be pulled from (those with measured
+        depth, or where depth is missing for want of any surface), or None for all
     depth_m : (H, W) float metres, the frame's depth (0 or NaN: missing); needed with ``free_space_m``
     free_space_m : float > 0 or None: pull only the vertices seen past by more than this
     """

@@ -589,6 +589,16 @@ class MeshTracker:
         # Features on the object's very edge describe the background as much as the object.
         return cv2.erode(mask.astype(np.uint8), np.ones((7, 7), np.uint8)).astype(bool)
 
+    def _open(self, frame: RGBDFrame) -> np.ndarray:
+        """(H, W) bool, the pixels of ``frame`` the outside term may pull a vertex seen on: those
+        with measured depth, and those without where the empty workspace had none either (the
+        far background: nothing lost its depth there). A pixel whose depth the sensor lost now
+        may be the cloth seen at a grazing angle, which the segmentation missed."""
+        measured = valid_depth(frame.depth_m)
+        if self._background is None:
+            return measured
+        return measured | ~valid_depth(self._background.depth_m)
+
     def _boundary_term(self, obs: Observation, g0: np.ndarray, observed: np.ndarray | None = None) -> BoundaryTerm:
         """The boundary term over the boundary vertices that are ``observed`` ((N,) bool; all if None)."""
         ids = self.mesh.boundary
@@ -614,8 +624,8 @@ class MeshTracker:
             terms.append((cfg.lambda_b, self._boundary_term(obs, self._g0, observed)))
         if observed is not None and len(obs.outline_cam):
             if cfg.lambda_o > 0:
-                measured = None if frame is None else valid_depth(frame.depth_m)
-                terms.append((cfg.lambda_o, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed, measured)))
+                terms.append((cfg.lambda_o, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed,
+                                                        None if frame is None else self._open(frame))))
             elif cfg.lambda_f > 0 and frame is not None:  # the outside term's pull covers these vertices too
                 terms.append((cfg.lambda_f, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed,
                                                         depth_m=frame.depth_m, free_space_m=cfg.depth_outlier_m,

@@ -564,3 +564,30 @@ def test_a_mesh_left_in_the_air_beside_the_sheet_is_pulled_back_onto_it():
     assert TrackerConfig().lambda_f > 0
     assert errors[0.0] > 0.05, errors
     assert errors[TrackerConfig().lambda_f] < 0.005, errors
+
+
+def test_the_outside_term_pulls_a_mesh_left_over_the_far_background_where_the_workspace_is_known():
+    """The same jump with nothing behind the sheet: the part of the mesh left where the sheet
+    was lies on pixels without depth, which the outside term (``lambda_o``, the unfold trials'
+    tracker) leaves alone, since a cloth seen at a grazing angle loses its depth too. With the
+    empty workspace known to have had no depth there either, nothing was lost there: the
+    part is pulled back onto the sheet."""
+    from ipc.messages import RGBDFrame
+
+    plain = texture(np.random.default_rng(7), textured=False)
+    jump = np.array([-0.12, 0.0, 0.0])
+
+    def alone(shift, k):  # the sheet before nothing the sensor measures
+        return frame_of(plane_points(UV, CENTRE + shift, SIZE), UV, FACES, plain, CAM, SIZE, t=k / 30, seq=k,
+                        noise_m=0.002, rng=np.random.default_rng(100 + k), background_m=None)
+
+    empty = RGBDFrame(np.full((480, 640, 3), 90, np.uint8), np.zeros((480, 640), np.float32), CAM, 0.0, 0)
+    errors = {}
+    for known in (False, True):
+        tracker = MeshTracker(TrackerConfig(lambda_o=0.3, lambda_f=0.0, coarse_motion=False, use_correspondence=False))
+        e0 = tracker.initialise(alone(np.zeros(3), 0), background=empty if known else None)
+        for k in range(1, 4):
+            e = tracker.track(alone(jump, k))
+        errors[known] = float(np.linalg.norm(e.vertices - (e0.vertices + jump), axis=1).mean())
+    assert errors[False] > 0.03, errors
+    assert errors[True] < 0.01, errors
