@@ -388,6 +388,7 @@ class MeshTracker:
         self._anchors: TextureAnchors | None = None
         self._colour: ColourModel | None = None
         self._background: RGBDFrame | None = None  # the empty workspace, undistorted
+        self._unmeasured_before: np.ndarray | None = None  # its pixels without depth (``_open``)
         self._support_plane: SupportPlane | None = None  # the plane the object rests on, seen in the first frame
         self._background_given: RGBDFrame | None = None
         self._good_V = None  # (N, 3) the last estimate that was not lost
@@ -487,6 +488,7 @@ class MeshTracker:
         frame = self._undistort(frame)
         self._background_given = background  # as given, for a re-acquisition's new mesh
         self._background = None if background is None else self._undistort(background)
+        self._unmeasured_before = None if background is None else ~valid_depth(self._background.depth_m)
         cfg = self.config
         h, w = frame.depth_m.shape
         if mask is None:
@@ -595,9 +597,7 @@ class MeshTracker:
         far background: nothing lost its depth there). A pixel whose depth the sensor lost now
         may be the cloth seen at a grazing angle, which the segmentation missed."""
         measured = valid_depth(frame.depth_m)
-        if self._background is None:
-            return measured
-        return measured | ~valid_depth(self._background.depth_m)
+        return measured if self._unmeasured_before is None else measured | self._unmeasured_before
 
     def _boundary_term(self, obs: Observation, g0: np.ndarray, observed: np.ndarray | None = None) -> BoundaryTerm:
         """The boundary term over the boundary vertices that are ``observed`` ((N,) bool; all if None)."""
@@ -842,7 +842,7 @@ class MeshTracker:
         the last good estimate placed by global registration (``perception.registration``).
         A hypothesis other than ``V_pred`` must score clearly better to be taken, and none is
         that would put the mesh on something come in front of the cloth
-        (``_came_in_front``, ``_brought_nearer``)."""
+        (``_onto_what_came_in_front``)."""
         K = frame.camera.K
         uv_prev = project(self._V, K)
         seen = np.all(np.isfinite(uv_prev), axis=1) & (self._visible if self._visible is not None else True)
@@ -863,11 +863,10 @@ class MeshTracker:
         h, w = frame.depth_m.shape
         u, v = uv_prev[seen].T
         box = (max(0.0, v.min()), min(h, v.max() + 1), max(0.0, u.min()), min(w, u.max() + 1))
-        in_front = self._came_in_front(seen, frame)
         found = self._memory.translation(small, box)
         if found is not None and found[1] > MIN_RESPONSE:
             moved = self._translated(uv_prev, seen, found[0], frame)
-            if in_front and self._brought_nearer(moved, seen):
+            if self._onto_what_came_in_front(moved, seen, frame):
                 log.debug("frame %d: the translation measured is of something come in front; not taken", frame.seq)
             else:
                 hypotheses["translation"] = moved
@@ -879,7 +878,7 @@ class MeshTracker:
             found = self._registration.register(grey_of(frame), frame.depth_m, self._good_V, self.mesh.faces, K,
                                                 None if occluder is None else ~occluder)
             placed = None if found is None else found.apply(self._good_V)
-            if placed is not None and not (in_front and self._brought_nearer(placed, seen)):
+            if placed is not None and not self._onto_what_came_in_front(placed, seen, frame):
                 hypotheses["registration"] = placed
                 scores["registration"] = self._support(placed, small, frame, uv_prev, seen)
         best = max(scores, key=scores.get)
@@ -903,6 +902,12 @@ class MeshTracker:
         typical = float(np.median(dz[measured])) if measured.any() else 0.0
         dz = np.where(measured & (np.abs(dz - typical) < self.config.depth_outlier_m), dz, typical)
         return rays(np.where(np.isfinite(uv_new), uv_new, 0.0), K) * (self._V[:, 2] + dz)[:, None]
+
+    def _onto_what_came_in_front(self, V: np.ndarray, seen: np.ndarray, frame: RGBDFrame) -> bool:
+        """True when the hypothesis ``V`` (N, 3) brings the mesh onto something come in front of
+        the cloth: nearer (``_brought_nearer``, a median) where it came in front
+        (``_came_in_front``, which classifies the vertices: asked only of a hypothesis nearer)."""
+        return self._brought_nearer(V, seen) and self._came_in_front(seen, frame)
 
     def _came_in_front(self, seen: np.ndarray, frame: RGBDFrame) -> bool:
         """True when most of the vertices ``seen`` (N,) bool in the last frame are hidden now
