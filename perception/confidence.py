@@ -50,7 +50,12 @@ shape has changed by more than ``RESHAPED_M`` (``reshaping``), nothing confirms 
 development lifts of plain cloth most such estimates were wrong. The confidence is then at
 most ``UNCONFIRMED_CAP`` (``material_cap``): below the 0.5 a grasp should ask for, above the
 ``lost_confidence`` that makes the tracker look for the object again, since the mesh still
-lies on it.
+lies on it. On a printed cloth the frame's feature matches confirm them: each match follows the
+print from frame to frame and is bound to the material point it was found on. A mesh that
+slid along the cloth leaves its matches behind, while depth, outline and coverage still agree
+with it; when at least ``MIN_DISAGREEING`` matches, and more than half of them, lie farther from
+their material points than the solver's last outlier radius, the confidence is at most
+``UNCONFIRMED_CAP`` too (``matches_cap``). Neither bound flags the estimate lost.
 
 Arrays: vertices (N, 3) metres, camera frame; images and masks (H, W).
 """
@@ -82,6 +87,10 @@ EXPOSED_ALL, EXPOSED_NONE = 0.04, 0.12
 RESHAPED_M = 0.03
 #: the highest confidence of an estimate whose material points nothing confirms
 UNCONFIRMED_CAP = 0.45
+#: feature matches that must lie off their material points (and be more than half of the
+#: frame's matches) to unconfirm them: one or two are a point slipped on the print, not a
+#: mesh slid along the cloth
+MIN_DISAGREEING = 3
 
 
 @dataclass(frozen=True)
@@ -127,6 +136,14 @@ def material_cap(textured: bool, reshaped_m: float) -> float:
     return UNCONFIRMED_CAP if not textured and reshaped_m > RESHAPED_M else 1.0
 
 
+def matches_cap(residuals_m: np.ndarray, radius_m: float) -> float:
+    """``UNCONFIRMED_CAP`` when at least ``MIN_DISAGREEING`` of the frame's feature matches,
+    and more than half of them, lie farther than ``radius_m`` from their material points on the
+    estimate (``residuals_m`` (P,) metres, P >= 0), else 1."""
+    off = int(np.count_nonzero(np.asarray(residuals_m) > radius_m))
+    return UNCONFIRMED_CAP if off >= MIN_DISAGREEING and 2 * off > len(residuals_m) else 1.0
+
+
 def _ramp(value: float, good: float) -> float:
     """0 at 0, rising linearly to 1 at ``good`` and above."""
     return float(np.clip(value / good, 0.0, 1.0))
@@ -155,7 +172,8 @@ def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, 
         None: what coverage is measured on
     exposed : (N,) bool, the vertices the camera sees the empty workspace through
         (``perception.background.seen_through``), or None where the workspace is not known
-    cap : the highest confidence the evidence for the material points allows (``material_cap``)
+    cap : the highest confidence the evidence for the material points allows (``material_cap``,
+        ``matches_cap``)
     """
     n = len(vertices)
     h, w = depth_m.shape

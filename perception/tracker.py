@@ -46,7 +46,7 @@ from perception.appearance import AppearanceModel
 from perception.background import check_background, differs_from_background, seen_through
 from perception.coarse import MIN_RESPONSE, FrameMemory
 from perception.colour_model import ColourModel
-from perception.confidence import Assessment, assess, material_cap, reshaping
+from perception.confidence import Assessment, assess, matches_cap, material_cap, reshaping
 from perception.energy import (
     DEPTH_RESIDUALS,
     BoundaryTerm,
@@ -1030,11 +1030,13 @@ class MeshTracker:
             self._corr.update(obs.grey, feature_mask, V, faces, K)
         self._V_prev, self._V = self._V, V
         self.last_observation = obs
+        matched = 1.0
         if corr is not None:
             energies["inliers"] = float(corr.weights.sum())
+            matched = matches_cap(corr.residuals(V), stages[-1])
         visible = self._states(V, frame) == VISIBLE
         carried, self._last_seen = self._carried(V, visible, frame)
-        assessment = self._assess(V, frame, visible, mask, segment.leak, carried, extent.result(), differs)
+        assessment = self._assess(V, frame, visible, mask, segment.leak, carried, extent.result(), differs, matched)
         return self._estimate(frame, V, energies, iterations, assessment, t0, visible)
 
     def _carried(self, V: np.ndarray, visible: np.ndarray, frame: RGBDFrame) -> tuple[float, np.ndarray]:
@@ -1053,11 +1055,12 @@ class MeshTracker:
 
     def _assess(self, V: np.ndarray, frame: RGBDFrame, visible: np.ndarray, object_mask: np.ndarray,
                 leak: float = 0.0, carried: float = 0.0, extent: np.ndarray | None = None,
-                differs: np.ndarray | None = None) -> Assessment:
+                differs: np.ndarray | None = None, matched: float = 1.0) -> Assessment:
         """The evidence for estimate ``V`` (N, 3) in ``frame`` (``perception.confidence``);
         ``leak`` and ``extent`` are the segmentation's (``perception.segmentation.Segment``),
         ``carried`` the share of the mesh moved far while hidden (``_carried``), ``differs``
-        the frame's pixels that differ from the empty workspace (``_differs``), if known."""
+        the frame's pixels that differ from the empty workspace (``_differs``), if known,
+        ``matched`` what the frame's feature matches allow (``perception.confidence.matches_cap``)."""
         K = frame.camera.K
         exposed = None if differs is None else seen_through(V, K, differs, frame.depth_m, self.config.confidence_tol_m)
         likeness = 1.0
@@ -1066,7 +1069,7 @@ class MeshTracker:
         textured = self._appearance is not None and self._appearance.textured
         # only a plain cloth's cap depends on its change of shape: not measured on a printed one
         reshaped = 0.0 if textured or self._laid_V is None else reshaping(self._laid_V, V)
-        cap = material_cap(textured, reshaped)
+        cap = min(material_cap(textured, reshaped), matched)
         assessment = assess(V, self._edges, self._rest_lengths, visible, frame.depth_m, object_mask,
                             K, self.config.confidence_tol_m, likeness, leak, carried, extent, exposed, cap)
         self.last_assessment = assessment

@@ -10,7 +10,16 @@ import pytest
 from ipc.messages import CameraInfo, RGBDFrame
 from perception import MeshTracker, TrackerConfig
 from perception.background import differs_from_background, seen_through
-from perception.confidence import FLOOR, RESHAPED_M, UNCONFIRMED_CAP, assess, material_cap, reshaping
+from perception.confidence import (
+    FLOOR,
+    MIN_DISAGREEING,
+    RESHAPED_M,
+    UNCONFIRMED_CAP,
+    assess,
+    matches_cap,
+    material_cap,
+    reshaping,
+)
 from perception.tracker import TrackingError
 from tests.render import frame_of, grid_surface, plane_points, texture
 
@@ -147,6 +156,38 @@ def test_a_plain_cloth_that_changed_shape_is_not_trusted_for_its_material_points
         else:
             assert caps[-1] == UNCONFIRMED_CAP and estimates[-1].confidence <= UNCONFIRMED_CAP
             assert not estimates[-1].lost
+
+
+def test_matches_left_behind_by_a_mesh_that_slid_along_a_printed_cloth_unconfirm_it(tex):
+    """A mesh slid 8 cm along a printed sheet lying on a table still agrees with the depth
+    everywhere; the KLT points following the print stay on their material points, so most of
+    them now lie off the mesh, and the confidence is held under 0.5 whatever the other cues
+    say. One or two points off, or half of them, do not count."""
+    off, on = np.full(MIN_DISAGREEING, 0.05), np.zeros(MIN_DISAGREEING)
+    assert matches_cap(off, 0.02) == UNCONFIRMED_CAP
+    assert matches_cap(off[:-1], 0.02) == 1.0  # too few to tell a slide from points that slipped
+    assert matches_cap(np.concatenate([off, on]), 0.02) == 1.0  # half, not most
+    assert matches_cap(np.concatenate([off, on[:-1]]), 0.02) == UNCONFIRMED_CAP
+    assert matches_cap(np.zeros(0), 0.02) == 1.0
+
+    flat = hinged(UV, 0)
+    caps = {}
+    for push in (0.0, 0.08):
+        # neither the coarse stage nor a re-acquisition, which would find the print's offset
+        # and move the mesh back (what they are for): here the slid mesh itself is under test
+        tracker = MeshTracker(TrackerConfig(features="klt", use_boundary=False, coarse_motion=False,
+                                            reacquire_every=0))
+        first = sheet_on_table(flat, tex, 0)
+        tracker.initialise(first, mask=first.depth_m < TABLE_M - 0.005)
+        for k in (1, 2):
+            tracker.track(sheet_on_table(flat, tex, k))
+            assert tracker.last_assessment.material_cap == 1.0
+        tracker._V = tracker._V + np.array([push, 0.0, 0.0])
+        tracker._V_prev = tracker._V.copy()
+        estimate = tracker.track(sheet_on_table(flat, tex, 3))
+        caps[push] = (tracker.last_assessment.material_cap, estimate.confidence)
+    assert caps[0.0] == (1.0, pytest.approx(1.0, abs=0.05)), caps
+    assert caps[0.08][0] == UNCONFIRMED_CAP and caps[0.08][1] <= UNCONFIRMED_CAP, caps
 
 
 def test_a_held_vertex_follows_the_gripper_where_the_camera_cannot_see_it(tex):
