@@ -10,7 +10,8 @@ Works on depth images (H, W) float32 metres with 0/NaN for missing. Two situatio
   around that prediction and a depth band around the mesh. A hand or gripper holding the
   cloth is cut off at the margin; a wall or floor beyond the band never joins. With the
   empty workspace known, what differs from it and joins that object is the object too,
-  with or without depth (``_joined_differing``).
+  with or without depth (``_joined_differing``); without it, what has the object's colour
+  where depth could not place it and joins that object (``_joined_unplaced``).
 """
 
 from __future__ import annotations
@@ -150,8 +151,10 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
         like the surroundings are left out: outside the prediction
         unless they are more likely the object than not, inside it only where they are
         clearly not, in areas wider than a print's patches or joined to the surroundings
-        outside it (``_uncovered``). With colour, the Segment also has the object's extent
-        beyond the search (``Segment.extent``).
+        outside it (``_uncovered``). Where a real part of the prediction went unfound and
+        the empty workspace is not known, the pixels of the object's colour that depth could
+        not place join the object (``_joined_unplaced``). With colour, the Segment also has
+        the object's extent beyond the search (``Segment.extent``).
     not_object : (H, W) bool, pixels that cannot be the object (a known occluder, the empty
         workspace), or None; they are left out of the mask, and the extent does not reach
         across them
@@ -180,14 +183,26 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
     unsearched[y0:y1, x0:x1] = ~search
     d = np.where(valid, depth, 0.0)
     candidate = valid & search & (d > z_range[0] - cfg.depth_band_m) & (d < z_range[1] + cfg.depth_band_m)
-    region, leak = _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg)
+    regions = _regions(candidate, depth, cfg)
+    region, leak = _object_regions(regions, candidate, pred, dist, hidden_mask, y0, x0, cfg)
     by_colour = colour is not None and rgb is not None and colour.informative
+    p = None
     if by_colour and leak > 0.1:
         # Depth runs on beyond the search: the object lies on something of its own depth
         # (a table). Colour may tell them apart.
         p = colour.probability(rgb[y0:y1, x0:x1])
         candidate &= (p >= 0.5) | (pred & ~_uncovered(pred, p))
-        region, leak = _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg)
+        regions = _regions(candidate, depth, cfg)
+        region, leak = _object_regions(regions, candidate, pred, dist, hidden_mask, y0, x0, cfg)
+    if by_colour and differs is None and np.count_nonzero(pred & ~region) >= cfg.min_region_px:
+        # A real part of the prediction went unfound: perhaps a part depth could not place.
+        if p is None:
+            p = colour.probability(rgb[y0:y1, x0:x1])
+        _, labels, stats = regions
+        placed = stats[:, cv2.CC_STAT_AREA] >= cfg.min_region_px
+        placed[0] = False
+        specks = candidate & ~placed[labels]  # on a step in depth (label 0) or in too small a region
+        region = _joined_unplaced(region, (~valid & pred) | specks, p, search)
     out[y0:y1, x0:x1] = region
     excluded = None if not_object is None else np.asarray(not_object, bool)
     if excluded is not None:
@@ -203,6 +218,26 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
         return Segment(out, unsearched, leak)
     extent = object_extent(out, depth_m, predicted_mask, rgb, colour, cfg, not_object) if with_extent else None
     return Segment(out, unsearched, leak, extent)
+
+
+def _joined_unplaced(region: np.ndarray, unplaced: np.ndarray, p: np.ndarray, search: np.ndarray) -> np.ndarray:
+    """``region`` with the pixels of ``unplaced`` in the ``search`` that have the object's
+    colour (``p`` >= 0.5), joined to it through each other's 8 neighbours. Box-sized arrays.
+
+    ``unplaced`` are the pixels depth could not place: those without depth where the object
+    was predicted, and those with depth in the search's band on a step in depth or in a speck
+    of continuous depth smaller than a region. A part of the cloth turned steeply away from
+    the camera (the near slope of a cloth lifted off a table, a fold seen edge-on) loses most
+    of its depth and breaks the rest into specks between steps; it is still the cloth's
+    colour, and the mesh still covers it. Beyond the prediction a pixel without depth says
+    nothing: many sensors measure little but the object (a grey shirt behind a grey foam
+    tube, all without depth, stays out); nor does a surface that depth places join, other
+    than its rim."""
+    like = search & (p >= 0.5) & unplaced
+    n, labels = cv2.connectedComponents((region | like).astype(np.uint8), connectivity=8)
+    joined = np.bincount(labels[region], minlength=n) > 0
+    joined[0] = False
+    return joined[labels]
 
 
 def _joined_differing(mask: np.ndarray, differs: np.ndarray, depth_m: np.ndarray, predicted_mask: np.ndarray,
@@ -337,10 +372,11 @@ def _uncovered(pred: np.ndarray, p: np.ndarray) -> np.ndarray:
     return uncovered
 
 
-def _object_regions(candidate, depth, pred, dist, hidden_mask, y0, x0, cfg):
+def _object_regions(regions, candidate, pred, dist, hidden_mask, y0, x0, cfg):
     """The regions of ``candidate`` (box-sized bool) that belong to the object, and the
-    fraction of their edge on the search's rim (``Segment.leak``); box-sized arrays."""
-    n, labels, stats = _regions(candidate, depth, cfg)
+    fraction of their edge on the search's rim (``Segment.leak``); box-sized arrays.
+    ``regions``: ``_regions(candidate, depth, cfg)``."""
+    n, labels, stats = regions
     if n <= 1:
         return np.zeros_like(candidate), 0.0
     overlap = np.bincount(labels[pred], minlength=n)

@@ -107,6 +107,47 @@ def test_tracked_segmentation_leaves_out_the_table_a_lifted_corner_bared():
     assert iou(segment.mask, cloth) > 0.95
 
 
+def lifted_slope(rng):
+    """A pink cloth lying on a grey table 1.3 m away (rows 60-140), whose near part (rows
+    140-180) rises steeply towards the camera, as when a corner is lifted: there the sensor
+    has lost most of the depth, and what is left jumps by centimetres from pixel to pixel,
+    specks too small to be a region. depth, rgb, flat part, slope, colour model."""
+    depth = np.full((H, W), 1.3, np.float32)
+    rgb = np.clip(rng.normal(120, 4, (H, W, 3)), 0, 255).astype(np.uint8)
+    flat, slope = np.zeros((H, W), bool), np.zeros((H, W), bool)
+    flat[60:140, 80:240] = True
+    slope[140:180, 80:240] = True
+    rgb[flat | slope] = (230, 150, 170)
+    depth[140:180, 80:240] = rng.uniform(0.9, 1.3, (40, 160)) * (rng.random((40, 160)) < 0.4)
+    return depth, rgb, flat, slope, ColourModel(rgb, flat | slope)
+
+
+def test_a_part_of_the_cloth_turned_steeply_away_is_kept_by_its_colour():
+    """The mesh still covers the slope; depth finds only the flat part, colour says the
+    slope is the cloth too."""
+    depth, rgb, flat, slope, colour = lifted_slope(np.random.default_rng(3))
+    z = (0.9, 1.32)
+    without = segment_tracked(depth, flat | slope, z, SegmentationConfig())
+    assert without.mask[slope].mean() < 0.3  # depth alone: only the rim next to the flat part
+    segment = segment_tracked(depth, flat | slope, z, SegmentationConfig(), rgb=rgb, colour=colour)
+    assert segment.mask[slope].mean() > 0.9 and segment.mask[flat].mean() > 0.95
+
+
+def test_colour_keeps_no_pixel_without_depth_beyond_the_prediction_or_a_surface_depth_places():
+    """Beside the slope, a pink shirt without depth (the sensor reaches only the cloth), and a
+    pink box 20 cm in front of the table that the prediction does not cover: neither joins."""
+    depth, rgb, flat, slope, colour = lifted_slope(np.random.default_rng(4))
+    shirt, box = np.zeros((H, W), bool), np.zeros((H, W), bool)
+    shirt[140:200, 240:262] = True
+    box[60:140, 240:262] = True
+    rgb[shirt | box] = (230, 150, 170)
+    depth[shirt] = 0.0
+    depth[box] = 1.1
+    segment = segment_tracked(depth, flat | slope, (0.9, 1.32), SegmentationConfig(), rgb=rgb, colour=colour)
+    assert segment.mask[slope].mean() > 0.9
+    assert segment.mask[shirt].mean() < 0.1 and segment.mask[box].mean() < 0.1
+
+
 def test_with_the_empty_workspace_the_object_takes_in_what_differs_from_it():
     """A cloth on a table at the table's depth, its left third without depth (seen at a
     grazing angle); the mesh lost that third, so the search misses it. What differs from the
