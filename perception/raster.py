@@ -38,6 +38,16 @@ def blow_up(mask: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarray
     return big[: shape[0], : shape[1]].view(bool)
 
 
+def reached_from(seed: np.ndarray, passable: np.ndarray, connectivity: int = 8) -> np.ndarray:
+    """(H, W) bool: the connected regions of ``passable`` (H, W) bool that hold a pixel of
+    ``seed`` (H, W) bool, neighbours taken ``connectivity`` (4 or 8) ways; seed pixels outside
+    ``passable`` reach nothing and are not in it."""
+    n, labels = cv2.connectedComponents(passable.astype(np.uint8), connectivity=connectivity)
+    reached = np.bincount(labels[seed], minlength=n) > 0
+    reached[0] = False
+    return reached[labels]
+
+
 def _pixel_triangles(uv: np.ndarray, faces: np.ndarray, shape) -> tuple[np.ndarray, np.ndarray]:
     """Integer triangles (K, 3, 2) of the faces whose corners are all finite, and their ids (K,)."""
     h, w = shape

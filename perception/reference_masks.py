@@ -36,7 +36,7 @@ from dataclasses import asdict, dataclass
 import cv2
 import numpy as np
 
-from perception.raster import disc
+from perception.raster import disc, reached_from
 
 log = logging.getLogger(__name__)
 
@@ -191,12 +191,7 @@ def grow_along_surface(core: np.ndarray, allowed: np.ndarray, depth_m: np.ndarra
     without crossing a depth step (4-connected, so a diagonal of noise does not bridge a seam)."""
     reach = cv2.dilate(core.astype(np.uint8), disc(config.grow_px)).astype(bool)
     smooth = allowed & reach & ~depth_steps(depth_m, config.depth_step_m)
-    region = smooth | core
-    n, labels = cv2.connectedComponents(region.astype(np.uint8), connectivity=4)
-    touching = np.zeros(n, bool)
-    touching[np.unique(labels[core])] = True
-    touching[0] = False
-    return touching[labels]
+    return reached_from(core, smooth | core, connectivity=4)
 
 
 def next_mask(rgb: np.ndarray, depth_m: np.ndarray, previous: np.ndarray, model: ColourModel,

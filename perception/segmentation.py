@@ -24,7 +24,7 @@ import numpy as np
 
 from perception.colour_model import ColourModel
 from perception.geometry import backproject
-from perception.raster import blow_up, bounding_box, disc
+from perception.raster import blow_up, bounding_box, disc, reached_from
 
 log = logging.getLogger(__name__)
 
@@ -233,11 +233,7 @@ def _joined_unplaced(region: np.ndarray, unplaced: np.ndarray, p: np.ndarray, se
     nothing: many sensors measure little but the object (a grey shirt behind a grey foam
     tube, all without depth, stays out); nor does a surface that depth places join, other
     than its rim."""
-    like = search & (p >= 0.5) & unplaced
-    n, labels = cv2.connectedComponents((region | like).astype(np.uint8), connectivity=8)
-    joined = np.bincount(labels[region], minlength=n) > 0
-    joined[0] = False
-    return joined[labels]
+    return reached_from(region, region | (search & (p >= 0.5) & unplaced))
 
 
 def _joined_differing(mask: np.ndarray, differs: np.ndarray, depth_m: np.ndarray, predicted_mask: np.ndarray,
@@ -269,10 +265,7 @@ def _joined_differing(mask: np.ndarray, differs: np.ndarray, depth_m: np.ndarray
     d = np.where(valid, depth, 0.0)
     with_depth = (d > z_range[0] - cfg.depth_band_m) & (d < z_range[1] + cfg.depth_band_m) & ~_jumps(depth, cfg)
     passable = (found | differs[y0:y1, x0:x1]) & (with_depth | ~valid)
-    n, labels = cv2.connectedComponents(passable.astype(np.uint8), connectivity=8)
-    joined = np.bincount(labels[found & passable], minlength=n) > 0
-    joined[0] = False
-    grown = joined[labels] | found
+    grown = reached_from(found, passable) | found
     out = np.zeros((h, w), bool)
     out[y0:y1, x0:x1] = grown
     unsearched = np.ones((h, w), bool)
@@ -336,10 +329,7 @@ def _colour_extent(region: np.ndarray, depth_m: np.ndarray, p: np.ndarray, cfg: 
     if allowed is not None:
         gap &= allowed
     passable = like | gap | region
-    n, labels = cv2.connectedComponents(passable.astype(np.uint8), connectivity=8)
-    joined = np.bincount(labels[region], minlength=n) > 0
-    joined[0] = False
-    half = joined[labels] & like
+    half = reached_from(region, passable) & like
     return blow_up(half, 2, (h, w))
 
 

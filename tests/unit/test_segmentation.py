@@ -7,6 +7,7 @@ import pytest
 from ipc.messages import CameraInfo
 from perception.colour_model import ColourModel
 from perception.geometry import rays
+from perception.raster import reached_from
 from perception.segmentation import SegmentationConfig, find_object, object_extent, segment_tracked, split_contour
 
 CAM = CameraInfo.from_fov(320, 240, np.deg2rad(50))
@@ -105,6 +106,23 @@ def test_tracked_segmentation_leaves_out_the_table_a_lifted_corner_bared():
     assert (segment.mask & strip).sum() < 0.1 * strip.sum()
     assert segment.mask[100:112, 120:132].mean() > 0.9
     assert iou(segment.mask, cloth) > 0.95
+
+
+def test_reached_from_keeps_the_regions_a_seed_lies_in():
+    """Two blobs of passable pixels, a seed in one: that one only. Blobs touching at a corner
+    are one region 8 ways, two 4 ways; a seed outside the passable pixels reaches nothing."""
+    passable = np.zeros((10, 10), bool)
+    passable[1:4, 1:4] = True
+    passable[4:7, 4:7] = True  # touches the first blob at one corner
+    passable[8:10, 0:3] = True
+    seed = np.zeros_like(passable)
+    seed[2, 2] = True
+    assert np.array_equal(reached_from(seed, passable), passable & ~(np.arange(10)[:, None] >= 8))
+    four = reached_from(seed, passable, connectivity=4)
+    assert four[1:4, 1:4].all() and four.sum() == 9
+    outside = np.zeros_like(passable)
+    outside[0, 9] = True
+    assert not reached_from(outside, passable).any()
 
 
 def lifted_slope(rng):
