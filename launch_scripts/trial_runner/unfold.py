@@ -13,7 +13,7 @@ with each frame as the known occluder. The second corner is chosen by
 - "adjacent": the planner's ``AdjacentCornersRequest``: the corners next to the held one
   along the tracked mesh's canonical outline, at their tracked positions, asked
   ``even_if_lost``; the robot takes a reachable one joined to the held corner by a straight
-  edge, seen by the camera and confirmed by the measured surface
+  edge, sharp rather than blunt, seen by the camera and confirmed by the measured surface
   (``sim.laundry.controller.stretchable_corner``), and grasps nothing when the one it would
   take was not seen enough (``why_not_seen``) or not confirmed (``why_not_confirmed``);
 - "lowest": the lowest point of the hanging cloth as the camera sees it (the classic
@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from grasping import from_the_side, lowest_point_grasp
+from grasping import corner_angles, from_the_side, lowest_point_grasp
 from ipc.messages import (
     AdjacentCornersRequest,
     GraspPlan,
@@ -190,7 +190,9 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
                 return None, None, -1, {"reason": why[0], "n_candidates": len(candidates)}
             candidates = tuple(c for c, w in zip(candidates, why) if not w)
         held_cam = transform_points(invert_transform(scene.T_world_cam), first_hand.gripper.position[None])[0]
-        best = stretchable_corner(candidates, estimate.canonical, held_vertex, held_cam)
+        ids, angles = corner_angles(estimate.canonical, estimate.faces, estimate.boundary)
+        angles_deg = dict(zip(ids.tolist(), np.degrees(angles).tolist()))
+        best = stretchable_corner(candidates, estimate.canonical, held_vertex, held_cam, angles_deg)
         if best is None:
             return None, None, -1, {"reason": "the planner found no adjacent corner on the estimate's outline"}
         seen = {"visible": round(best.visible, 3), "n_candidates": len(reply.candidates),
@@ -205,7 +207,8 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
         distance = float(np.linalg.norm(estimate.canonical[best.plan.vertex_id] - estimate.canonical[held_vertex]))
         return best.plan, distance, int(best.plan.vertex_id), {
             "side": best.side, "material_distance_m": round(best.material_distance_m, 4),
-            "straightness": round(edge_straightness(best, estimate.canonical, held_vertex), 3), **seen}
+            "straightness": round(edge_straightness(best, estimate.canonical, held_vertex), 3),
+            "angle_deg": _rounded(angles_deg.get(int(best.plan.vertex_id))), **seen}
     if config.regrasp == "lowest":
         points = seen_cloth_points(frame, reference)
         if len(points) < 3:
@@ -470,6 +473,10 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
     record["tracking"].update(_tracking_record(tracking, scene, lift_seqs, plan_seq, errors=False))
     timings = [estimates[s].timing_ms for s in tracking.phases]
     record["timing"]["tracking_ms"] = round(float(np.median(timings)), 1) if timings else None
+
+
+def _rounded(value: float | None) -> float | None:
+    return None if value is None else round(float(value), 1)
 
 
 def _finite(value: float) -> float | None:

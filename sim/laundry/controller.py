@@ -173,14 +173,18 @@ def why_not_confirmed(corner: AdjacentCorner, held_point_cam: np.ndarray) -> str
 
 
 def stretchable_corner(candidates, canonical: np.ndarray, held_vertex: int,
-                       held_point_cam: np.ndarray | None = None) -> AdjacentCorner | None:
+                       held_point_cam: np.ndarray | None = None,
+                       angles_deg: dict | None = None) -> AdjacentCorner | None:
     """The adjacent corner to grasp second, of the planner's ``AdjacentCorner`` candidates
     (best first): a reachable one first, among those one joined to the held point by a
     straight edge (``MIN_EDGE_STRAIGHTNESS``), which pulling the two corners apart stretches
-    (a T-shirt's hem, not the side seam that bends under the sleeve), among those one the
-    camera saw enough of (``seen_enough``) and, given where the held point is
-    (``held_point_cam`` (3,), metres, the plans' camera frame), among those one the frame
-    confirms (``why_not_confirmed``), among those one it confirms closely
+    (a T-shirt's hem, not the side seam that bends under the sleeve), among those, given the
+    canonical outline's corner angles (``angles_deg``, {vertex id: interior angle in degrees},
+    ``grasping.corner_angles``), a sharp one (``SURE_CORNER_MAX_ANGLE_DEG``: a cuff's other
+    corner, not the blunt corner where a shirt's shoulder meets its neckline, which no edge of
+    the shirt ends at), among those one the camera saw enough of (``seen_enough``) and, given
+    where the held point is (``held_point_cam`` (3,), metres, the plans' camera frame), among
+    those one the frame confirms (``why_not_confirmed``), among those one it confirms closely
     (``closely_confirmed``); the planner's order decides among equals. None when there are
     no candidates. The caller still checks what it got: the best may be unseen or
     unconfirmed.
@@ -189,6 +193,8 @@ def stretchable_corner(candidates, canonical: np.ndarray, held_vertex: int,
         return None
     return min(candidates, key=lambda c: (not c.reachable,
                                           edge_straightness(c, canonical, held_vertex) < MIN_EDGE_STRAIGHTNESS,
+                                          angles_deg is not None
+                                          and angles_deg.get(int(c.plan.vertex_id), 180.0) > SURE_CORNER_MAX_ANGLE_DEG,
                                           not seen_enough(c),
                                           held_point_cam is not None and bool(why_not_confirmed(c, held_point_cam)),
                                           held_point_cam is not None and not closely_confirmed(c)))
@@ -199,7 +205,8 @@ def stretchable_corner(candidates, canonical: np.ndarray, held_vertex: int,
 NEAR_BEST_SCORE = 0.05
 
 #: Largest interior angle, degrees, of a canonical outline corner a cloth on the table is
-#: lifted by first (``corner_to_lift_first``). On the first plans of 19 development trials
+#: lifted by first (``corner_to_lift_first``), and of one the second gripper takes before a
+#: blunter one (``stretchable_corner``). On the first plans of 19 development trials
 #: (even seeds 0-70: 7 towels and 12 T-shirts, flat, crumpled and folded) the outline corners
 #: within 3 cm of a true corner measured 82-111 degrees on a towel and 84-132 on a shirt;
 #: those 8-28 cm from every true corner that scored within ``NEAR_BEST_SCORE`` of the best

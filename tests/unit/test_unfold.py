@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from grasping import GraspPlanner, adjacent_corners
+from grasping import GraspPlanner, adjacent_corners, corner_angles
 from ipc.messages import GraspPlan, MeshEstimate
 from perception.geometry import look_at, project, transform_points
 from sim.cloth_mesh import rectangle_cloth
@@ -19,6 +19,7 @@ from sim.laundry.controller import (
     MIN_CORNER_VISIBLE,
     MIN_EDGE_STRAIGHTNESS,
     NEAR_BEST_SCORE,
+    SURE_CORNER_MAX_ANGLE_DEG,
     closely_confirmed,
     corner_to_lift_first,
     edge_straightness,
@@ -91,6 +92,27 @@ def test_held_by_a_hem_corner_a_shirt_is_stretched_along_its_hem_not_up_its_side
         chosen = stretchable_corner(order, est.canonical, held)
         assert polygon_corner_of(est, [chosen.plan.vertex_id], outline) == [14]
     assert stretchable_corner((), est.canonical, held) is None
+
+
+def test_held_by_a_cuff_corner_a_shirt_is_stretched_along_its_cuff_not_to_its_neck():
+    # Outline points of the T-shirt: left cuff top 17, left cuff bottom 16, neck corner 0.
+    # From the cuff's top corner the sleeve's top runs as straight to the neck corner as the
+    # cuff does to its other corner, but no edge of the shirt ends at the neck corner: blunt
+    # (125 degrees), where the cuff's corners are about square.
+    est, outline = tshirt_estimate()
+    corners = GraspPlanner().corners(est)
+    held = int(corners[polygon_corner_of(est, corners, outline).index(17)])
+    candidates = {polygon_corner_of(est, [c.plan.vertex_id], outline)[0]: c
+                  for c in adjacent_corners(est, held).candidates}
+    assert sorted(candidates) == [0, 16]
+    assert all(edge_straightness(c, est.canonical, held) >= MIN_EDGE_STRAIGHTNESS for c in candidates.values())
+    ids, angles = corner_angles(est.canonical, est.faces, est.boundary)
+    angles_deg = dict(zip(ids.tolist(), np.degrees(angles).tolist()))
+    assert angles_deg[candidates[0].plan.vertex_id] > SURE_CORNER_MAX_ANGLE_DEG > angles_deg[candidates[16].plan.vertex_id]
+    for order in ((candidates[0], candidates[16]), (candidates[16], candidates[0])):
+        assert stretchable_corner(order, est.canonical, held, angles_deg=angles_deg) is candidates[16]
+    # without the angles the planner's order decides
+    assert stretchable_corner((candidates[0], candidates[16]), est.canonical, held) is candidates[0]
 
 
 def test_a_reachable_corner_comes_before_a_straight_edge():
