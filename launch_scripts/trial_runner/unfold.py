@@ -190,11 +190,11 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
                 return None, None, -1, {"reason": why[0], "n_candidates": len(candidates)}
             candidates = tuple(c for c, w in zip(candidates, why) if not w)
         held_cam = transform_points(invert_transform(scene.T_world_cam), first_hand.gripper.position[None])[0]
-        ids, angles = corner_angles(estimate.canonical, estimate.faces, estimate.boundary)
+        if not candidates:
+            return None, None, -1, {"reason": "the planner found no adjacent corner on the estimate's outline"}
+        ids, angles = corner_angles(estimate.canonical, estimate.faces, estimate.boundary)  # as for the first grasp
         angles_deg = dict(zip(ids.tolist(), np.degrees(angles).tolist()))
         best = stretchable_corner(candidates, estimate.canonical, held_vertex, held_cam, angles_deg)
-        if best is None:
-            return None, None, -1, {"reason": "the planner found no adjacent corner on the estimate's outline"}
         seen = {"visible": round(best.visible, 3), "n_candidates": len(reply.candidates),
                 "tip_offset_m": None if best.tip_offset_m is None else round(best.tip_offset_m, 4)}
         unseen = why_not_seen(best)
