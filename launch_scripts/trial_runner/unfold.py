@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from grasping import corner_angles, from_the_side, lowest_point_grasp
+from grasping import from_the_side, lowest_point_grasp
 from ipc.messages import (
     AdjacentCornersRequest,
     GraspPlan,
@@ -55,6 +55,7 @@ from sim.grasp_execution import close_fingers, fingertip_target, move_grippers, 
 from sim.ground_truth import error_summary, vertex_errors
 from sim.laundry.controller import (
     View,
+    corner_angles_deg,
     corner_to_lift_first,
     default_controller,
     edge_straightness,
@@ -192,8 +193,7 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
         held_cam = transform_points(invert_transform(scene.T_world_cam), first_hand.gripper.position[None])[0]
         if not candidates:
             return None, None, -1, {"reason": "the planner found no adjacent corner on the estimate's outline"}
-        ids, angles = corner_angles(estimate.canonical, estimate.faces, estimate.boundary)  # as for the first grasp
-        angles_deg = dict(zip(ids.tolist(), np.degrees(angles).tolist()))
+        angles_deg = corner_angles_deg(estimate)
         best = stretchable_corner(candidates, estimate.canonical, held_vertex, held_cam, angles_deg)
         seen = {"visible": round(best.visible, 3), "n_candidates": len(reply.candidates),
                 "tip_offset_m": None if best.tip_offset_m is None else round(best.tip_offset_m, 4)}
@@ -205,10 +205,11 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
             return None, None, -1, {"reason": f"adjacent corner not confirmed by the measured surface ({unconfirmed}): "
                                               "not grasped", **seen}
         distance = float(np.linalg.norm(estimate.canonical[best.plan.vertex_id] - estimate.canonical[held_vertex]))
+        angle = angles_deg.get(int(best.plan.vertex_id))
         return best.plan, distance, int(best.plan.vertex_id), {
             "side": best.side, "material_distance_m": round(best.material_distance_m, 4),
             "straightness": round(edge_straightness(best, estimate.canonical, held_vertex), 3),
-            "angle_deg": _rounded(angles_deg.get(int(best.plan.vertex_id))), **seen}
+            "angle_deg": None if angle is None else round(angle, 1), **seen}
     if config.regrasp == "lowest":
         points = seen_cloth_points(frame, reference)
         if len(points) < 3:
@@ -473,10 +474,6 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
     record["tracking"].update(_tracking_record(tracking, scene, lift_seqs, plan_seq, errors=False))
     timings = [estimates[s].timing_ms for s in tracking.phases]
     record["timing"]["tracking_ms"] = round(float(np.median(timings)), 1) if timings else None
-
-
-def _rounded(value: float | None) -> float | None:
-    return None if value is None else round(float(value), 1)
 
 
 def _finite(value: float) -> float | None:

@@ -172,6 +172,13 @@ def why_not_confirmed(corner: AdjacentCorner, held_point_cam: np.ndarray) -> str
     return ""
 
 
+def corner_angles_deg(estimate) -> dict[int, float]:
+    """{vertex id: interior angle in degrees} of the corners of ``estimate``'s canonical
+    outline (``grasping.corner_angles``)."""
+    ids, angles = corner_angles(estimate.canonical, estimate.faces, estimate.boundary)
+    return dict(zip(ids.tolist(), np.degrees(angles).tolist()))
+
+
 def stretchable_corner(candidates, canonical: np.ndarray, held_vertex: int,
                        held_point_cam: np.ndarray | None = None,
                        angles_deg: dict | None = None) -> AdjacentCorner | None:
@@ -179,12 +186,12 @@ def stretchable_corner(candidates, canonical: np.ndarray, held_vertex: int,
     (best first): a reachable one first, among those one joined to the held point by a
     straight edge (``MIN_EDGE_STRAIGHTNESS``), which pulling the two corners apart stretches
     (a T-shirt's hem, not the side seam that bends under the sleeve), among those, given the
-    canonical outline's corner angles (``angles_deg``, {vertex id: interior angle in degrees},
-    ``grasping.corner_angles``), a sharp one (``SURE_CORNER_MAX_ANGLE_DEG``: a cuff's other
-    corner, not the blunt corner where a shirt's shoulder meets its neckline, which no edge of
-    the shirt ends at), among those one the camera saw enough of (``seen_enough``) and, given
-    where the held point is (``held_point_cam`` (3,), metres, the plans' camera frame), among
-    those one the frame confirms (``why_not_confirmed``), among those one it confirms closely
+    canonical outline's corner angles (``angles_deg``, ``corner_angles_deg``), a sharp one
+    (``SURE_CORNER_MAX_ANGLE_DEG``: a cuff's other corner, not the blunt corner where a
+    shirt's shoulder meets its neckline, which no edge of the shirt ends at), among those one
+    the camera saw enough of (``seen_enough``) and, given where the held point is
+    (``held_point_cam`` (3,), metres, the plans' camera frame), among those one the frame
+    confirms (``why_not_confirmed``), among those one it confirms closely
     (``closely_confirmed``); the planner's order decides among equals. None when there are
     no candidates. The caller still checks what it got: the best may be unseen or
     unconfirmed.
@@ -228,8 +235,7 @@ def corner_to_lift_first(candidates, estimate, T_world_cam: np.ndarray) -> Grasp
     """
     if not candidates:
         return None
-    ids, angles = corner_angles(estimate.canonical, estimate.faces, estimate.boundary)
-    angle_deg = dict(zip(ids.tolist(), np.degrees(angles).tolist()))
+    angle_deg = corner_angles_deg(estimate)
     best = candidates[0].score
     sure = [c for c in candidates if c.score >= best - NEAR_BEST_SCORE
             and angle_deg.get(int(c.vertex_id), 180.0) <= SURE_CORNER_MAX_ANGLE_DEG]

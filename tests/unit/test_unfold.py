@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from grasping import GraspPlanner, adjacent_corners, corner_angles
+from grasping import GraspPlanner, adjacent_corners
 from ipc.messages import GraspPlan, MeshEstimate
 from perception.geometry import look_at, project, transform_points
 from sim.cloth_mesh import rectangle_cloth
@@ -21,6 +21,7 @@ from sim.laundry.controller import (
     NEAR_BEST_SCORE,
     SURE_CORNER_MAX_ANGLE_DEG,
     closely_confirmed,
+    corner_angles_deg,
     corner_to_lift_first,
     edge_straightness,
     seen_enough,
@@ -106,8 +107,7 @@ def test_held_by_a_cuff_corner_a_shirt_is_stretched_along_its_cuff_not_to_its_ne
                   for c in adjacent_corners(est, held).candidates}
     assert sorted(candidates) == [0, 16]
     assert all(edge_straightness(c, est.canonical, held) >= MIN_EDGE_STRAIGHTNESS for c in candidates.values())
-    ids, angles = corner_angles(est.canonical, est.faces, est.boundary)
-    angles_deg = dict(zip(ids.tolist(), np.degrees(angles).tolist()))
+    angles_deg = corner_angles_deg(est)
     assert angles_deg[candidates[0].plan.vertex_id] > SURE_CORNER_MAX_ANGLE_DEG > angles_deg[candidates[16].plan.vertex_id]
     for order in ((candidates[0], candidates[16]), (candidates[16], candidates[0])):
         assert stretchable_corner(order, est.canonical, held, angles_deg=angles_deg) is candidates[16]
