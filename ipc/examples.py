@@ -97,7 +97,8 @@ def example_messages() -> dict[type, object]:
     mask = np.zeros((camera.height, camera.width), dtype=np.uint8)
     mask[1:, 1:3] = 255
     frame = m.RGBDFrame(rgb=rgb, depth_m=depth, camera=camera, timestamp_s=12.5, seq=42, occluder_mask=mask > 0,
-                        held_vertices=np.array([0], np.int32), held_points_m=np.array([[0.0, 0.0, 1.0]]))
+                        held_vertices=np.array([0], np.int32), held_points_m=np.array([[0.0, 0.0, 1.0]]),
+                        held_quats_xyzw=np.array([[1.0, 0.0, 0.0, 0.0]]))
     examples = [
         camera,
         frame,

@@ -20,7 +20,7 @@ import numpy as np
 
 from ipc import wire
 
-SCHEMA_VERSION = 6
+SCHEMA_VERSION = 7
 
 # Wire types shared by several fields.
 _REQUEST_ID = wire.Int(lo=0)  # echoed in the reply
@@ -139,6 +139,13 @@ class RGBDFrame:
         grippers hold them at this frame's time, from its own kinematics, or where it knows
         them to be; given with
         ``held_vertices`` (both or neither). The tracker keeps those vertices there.
+    held_quats_xyzw : (K, 4) float64 unit quaternions (x, y, z, w), in this frame's camera
+        frame: the orientation of the gripper holding each of ``held_vertices``, from the
+        robot's own kinematics, a row of NaN for a point no gripper holds (e.g. the lowest
+        point ``perception.hanging`` finds); or None when not known (only with
+        ``held_vertices``). When one gripper's orientation is given in this frame and the
+        last, for the same vertex, the tracker predicts the cloth turned with it about the
+        held point, as a robot's wrist turns a cloth hanging from it
     """
 
     rgb: np.ndarray = wire.field(wire.Array(("uint8",), 3))
@@ -149,6 +156,7 @@ class RGBDFrame:
     occluder_mask: np.ndarray | None = wire.field(wire.Optional(wire.Array(("uint8",), 2)), default=None)
     held_vertices: np.ndarray | None = wire.field(wire.Optional(wire.Array(("int32",), 1)), default=None)
     held_points_m: np.ndarray | None = wire.field(wire.Optional(wire.Array(("float64", "float32"), 2)), default=None)
+    held_quats_xyzw: np.ndarray | None = wire.field(wire.Optional(wire.Array(("float64", "float32"), 2)), default=None)
 
     def __post_init__(self):
         cam = self.camera
@@ -189,10 +197,30 @@ class RGBDFrame:
                                  "non-numeric values")
             object.__setattr__(self, "held_vertices", ids.astype(np.int32))
             object.__setattr__(self, "held_points_m", points.astype(np.float64))
+        if self.held_quats_xyzw is not None:
+            object.__setattr__(self, "held_quats_xyzw", self._held_quats())
         object.__setattr__(self, "rgb", rgb)
         object.__setattr__(self, "depth_m", depth)
         object.__setattr__(self, "timestamp_s", float(self.timestamp_s))
         object.__setattr__(self, "seq", int(self.seq))
+
+    def _held_quats(self) -> np.ndarray:
+        """``held_quats_xyzw`` checked: (K, 4) float64, each row a unit quaternion or all NaN."""
+        if self.held_vertices is None:
+            raise ValueError("RGBDFrame.held_quats_xyzw: expected only with held_vertices")
+        quats = np.asarray(self.held_quats_xyzw)
+        if quats.shape != (self.held_vertices.size, 4) or quats.dtype.kind != "f":
+            raise ValueError(f"RGBDFrame.held_quats_xyzw: expected ({self.held_vertices.size}, 4) float quaternions "
+                             f"like held_vertices, got shape {quats.shape} dtype {quats.dtype}")
+        quats = quats.astype(np.float64)
+        unknown = np.all(np.isnan(quats), axis=1)
+        with np.errstate(over="ignore", invalid="ignore"):
+            norms = np.linalg.norm(quats[~unknown], axis=1)
+        if not np.all(np.abs(norms - 1.0) <= 1e-3):  # also catches a row partly NaN, or infinite
+            raise ValueError("RGBDFrame.held_quats_xyzw: expected unit quaternions (x, y, z, w), or a row of NaN "
+                             "for a point no gripper holds")
+        quats[~unknown] /= norms[:, None]
+        return quats
 
     def valid_depth(self) -> np.ndarray:
         """(H, W) bool: where depth was measured (finite and > 0)."""

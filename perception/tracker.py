@@ -9,8 +9,9 @@ Usage::
 
 Each frame:
 
-1. predict the mesh from the previous estimates (constant velocity), and where that does
-   not explain the frame, from the image motion or a global registration
+1. predict the mesh from the previous estimates (constant velocity; turned with the
+   gripper holding it when the robot turns its wrist: ``perception.held_turn``), and where
+   that does not explain the frame, from the image motion or a global registration
    (``perception.coarse``, ``perception.registration``);
 2. classify each vertex as visible, hidden behind something nearer, out of view or
    without depth (``perception.visibility``);
@@ -78,6 +79,7 @@ from perception.geometry import (
     rays,
     same_optics,
 )
+from perception.held_turn import HeldTurns, Turn
 from perception.initial_mesh import InitialisationError, mesh_from_mask, object_area_m2, place_mesh, spacing_for
 from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
@@ -365,6 +367,8 @@ class MeshTracker:
         self.mesh: CanonicalMesh | None = None
         self._V = None
         self._V_prev = None
+        self._held_turns = HeldTurns()
+        self._turned: Turn | None = None  # the gripper's turn predicted from the frame of _V_prev to that of _V
         self._camera = None
         self._undistort = None
         self._solver = None
@@ -529,6 +533,8 @@ class MeshTracker:
         res = self._solver.minimise(V0, terms, cfg.init_iterations, cfg.tolerance_m)
         V = res.vertices
         self._V, self._V_prev = V, V.copy()
+        self._turned = None
+        self._held_turns.forget()
 
         feature_mask = self._feature_mask(obs.mask)
         if cfg.use_correspondence:
@@ -640,9 +646,14 @@ class MeshTracker:
 
     # -- track ---------------------------------------------------------------------------
 
-    def predict(self) -> np.ndarray:
-        """(N, 3) the mesh expected in the next frame (constant velocity, damped)."""
-        return self._V + self.config.velocity_prediction * (self._V - self._V_prev)
+    def predict(self, turn: Turn | None = None) -> np.ndarray:
+        """(N, 3) the mesh expected in the next frame: the last estimate moved on by a
+        fraction of its last motion (constant velocity, damped), then turned by ``turn``, the
+        turn of the gripper holding it since the last frame (``perception.held_turn``). The
+        last motion is counted less the gripper's own turn then, which this one repeats."""
+        V_prev = self._V_prev if self._turned is None else self._turned.apply(self._V_prev)
+        V_pred = self._V + self.config.velocity_prediction * (self._V - V_prev)
+        return V_pred if turn is None else turn.apply(V_pred)
 
     def track(self, frame: RGBDFrame) -> MeshEstimate:
         """Estimate the mesh in a new frame. Raises TrackingError before ``initialise`` or on a bad frame."""
@@ -659,7 +670,12 @@ class MeshTracker:
         faces = self.mesh.faces
         grey = grey_of(frame)
         small = self._memory.small(grey)
-        V_pred = self.predict()
+        turn = self._held_turns.turn(frame)
+        V_pred = self.predict(turn)
+        if turn is not None and self._last_seen is not None:
+            # What the robot turns turns with it, seen or not: a vertex hidden by the turn is
+            # not unconfirmed for being where the turn took it (``_carried``).
+            self._last_seen = turn.apply(self._last_seen)
         if cfg.coarse_motion:
             V_pred = self._coarse_prediction(V_pred, small, frame)
         self._memory.push(small)
@@ -675,6 +691,9 @@ class MeshTracker:
                 else _Done(self._corr.prepare(*args))
         try:
             estimate = self._solve_frame(frame, V_pred, pred_mask, grey, prepared, t0)
+            # The mesh was solved from the turned prediction, unless the object was not seen
+            # (then it stays where it was).
+            self._turned = turn if self.last_observation is not None else None
         finally:
             if prepared is not None:
                 prepared.exception()  # waits: the worker never uses the feature state after this frame
@@ -739,6 +758,7 @@ class MeshTracker:
             log.debug("frame %d: registration's placement rejected (%s)", frame.seq, assessment.as_dict())
             return self._placement_failed(frame, t0)
         self._V, self._V_prev, self._good_V = V, V.copy(), V
+        self._turned = None
         self._last_seen = last_seen
         self.last_observation = obs
         if self._corr is not None:

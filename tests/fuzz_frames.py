@@ -109,6 +109,12 @@ class FrameFuzzer:
             k = int(rng.integers(1, 4))
             held = {"held_vertices": rng.integers(0, 800, k).astype(np.int32),
                     "held_points_m": rng.normal(0.0, 1.0, (k, 3)) * 10.0 ** rng.uniform(-3, 4)}
+            turns = np.random.default_rng(seq)  # its own stream: the frames drawn above stay as they were
+            if turns.random() < 0.5:  # and how its grippers turn: any orientation, or none known for a point
+                quats = turns.normal(0.0, 1.0, (k, 4))
+                quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+                quats[turns.random(k) < 0.3] = np.nan
+                held["held_quats_xyzw"] = quats
         return RGBDFrame(rgb=rgb, depth_m=depth, camera=camera, timestamp_s=seq / 30.0, seq=seq, **held)
 
     def mask(self) -> np.ndarray | None:
