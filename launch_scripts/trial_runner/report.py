@@ -111,11 +111,12 @@ def _unfold_summary(records: list[dict], median) -> dict:
     """Success, first grasps at a corner, tracking error during the lift and at the second
     plan (medians over trials of their mean and p95, mm) and trial time of unfold trials;
     of the trials that declined the corner they would have taken (unseen, or not confirmed
-    by the measured surface), how many had a true adjacent corner in the camera's sight all
-    the same (``tracking.true_adjacent_seen``); and, summed over the trials' lifts and hangs
-    up to the second plan (``tracking.honesty``), the frames tracked, those wrong, wrong and
-    confident, wrong yet not flagged lost in time (``sim.evaluation.handled``), and right and
-    confident."""
+    by the measured surface) at every look, how many had a true adjacent corner in the
+    camera's sight all the same (``tracking.true_adjacent_seen``); how many took a second
+    corner only after turning the cloth (``looks``), and how many of those succeeded; and,
+    summed over the trials' lifts and hangs up to the second plan (``tracking.honesty``), the
+    frames tracked, those wrong, wrong and confident, wrong yet not flagged lost in time
+    (``sim.evaluation.handled``), and right and confident."""
     def err(key: str, stat: str):
         errors = [(r.get("tracking") or {}).get(key) for r in records]
         return median(e.get(stat) if e else None for e in errors)
@@ -125,8 +126,10 @@ def _unfold_summary(records: list[dict], median) -> dict:
     frames = {key: sum(h.get(key, 0) for h in honesty)
               for key in ("frames", "wrong", "wrong_confident", "wrong_not_lost_after_3", "right_confident")}
     in_sight = sum(any(((r.get("tracking") or {}).get("true_adjacent_seen") or {}).values()) for r in declined)
+    turned = [r for r in records if (r.get("looks") or {}).get("count", 1) > 1 and "plan_cam" in (r.get("second_grasp") or {})]
     return {"success": _rate(records), "first_grasp_at_corner": _rate(records, "corner_success"),
             "declined": {"trials": len(declined), "true_adjacent_corner_in_sight": in_sight},
+            "taken_after_turning": _rate(turned),
             "median_lift_error_mm": {"mean": err("lift_error_mm", "mean"), "p95": err("lift_error_mm", "p95")},
             "median_second_plan_error_mm": {"mean": err("second_plan_error_mm", "mean"),
                                             "p95": err("second_plan_error_mm", "p95")},
@@ -209,6 +212,9 @@ def markdown(rep: dict) -> str:
                          f"{wrong['wrong']} / {wrong['wrong_confident']} / {wrong['wrong_not_lost_after_3']} of "
                          f"{wrong['frames']} | {u['median_frames_tracked']} | {u['median_total_s']} |")
         lines.append("")
+        lines += [f"- {name}: {u['taken_after_turning']['n']} trials took their second corner only after turning "
+                  f"the hanging cloth (no look before confirmed one), and {pct(u['taken_after_turning'])} of them "
+                  "succeeded" for name, u in s["by_regrasp"].items() if u["taken_after_turning"]["n"]] + [""]
     if s["failures"]:
         lines += ["| failure | trials |", "| --- | --- |", *[f"| {k} | {n} |" for k, n in s["failures"].items()], ""]
     return "\n".join(lines)

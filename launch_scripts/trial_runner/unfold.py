@@ -14,15 +14,19 @@ with each frame as the known occluder. The second corner is chosen by
   along the tracked mesh's canonical outline, at their tracked positions, asked
   ``even_if_lost``; the robot takes a reachable one joined to the held corner by a straight
   edge, sharp rather than blunt, seen by the camera and confirmed by the measured surface
-  (``sim.laundry.controller.stretchable_corner``), and grasps nothing when the one it would
-  take was not seen enough (``why_not_seen``) or not confirmed (``why_not_confirmed``);
+  (``sim.laundry.controller.stretchable_corner``); when the one it would take was not seen
+  enough (``why_not_seen``) or not confirmed (``why_not_confirmed``), the first gripper turns
+  the hanging cloth a quarter turn at its wrist and the robot asks again, up to
+  ``UnfoldConfig.look_turns`` times, and grasps nothing if no look gave a corner to take;
 - "lowest": the lowest point of the hanging cloth as the camera sees it (the classic
   regrasp heuristic; ``grasping.lowest_point_grasp``), no tracking needed;
 - "redetect": the perception service is initialised afresh on the hanging cloth and the
   planner's best corner away from the first gripper is taken, without the lift's history.
 
 The record gains ``task``, ``regrasp``, ``first_grasp``, ``second_grasp`` (for a corner
-declined, only ``declined``: its visibility and measured tip's offset), ``unfold``
+declined, only ``declined``: its visibility and measured tip's offset at the last look),
+``looks`` (how many times the robot asked for the second corner, and how far it turned the
+cloth in all, degrees), ``unfold``
 (the judgement), ``tracking`` (error during the lift and at the second plan, frames
 tracked, confidence, how many frames of the lift and the hang the estimate got wrong and
 reported with confidence all the same (``honesty``), and by ground truth which true corners
@@ -38,6 +42,7 @@ import math
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from grasping import from_the_side, lowest_point_grasp
 from ipc.messages import (
@@ -67,7 +72,14 @@ from sim.laundry.judge import TOLERANCE_M, judge_unfold, seen_by_camera
 from sim.laundry.pictures import caption, draw_plan, save_png, strip
 from sim.laundry.segment import cloth_seen, mask_from_reference, seen_cloth_points
 from sim.laundry.truth import material_extent, nearest_corner, share_an_edge
-from sim.laundry.unfold import TautSensor, arm_for, lift_target, second_fingertip, stretch_targets
+from sim.laundry.unfold import (
+    TautSensor,
+    arm_for,
+    lift_target,
+    rolled,
+    second_fingertip,
+    stretch_targets,
+)
 
 log = logging.getLogger(__name__)
 
@@ -80,7 +92,8 @@ class _Tracking:
 
     Keeps per frame the estimate's vertices, the true cloth, confidence, ``lost`` and the
     tracking time; frames themselves only where a picture is taken (``keep``). Each frame
-    carries what the robot holds and where (``holds``) and, while one hand holds the cloth
+    carries what the robot holds, where and in what orientation its grippers are (``holds``)
+    and, while one hand holds the cloth
     and it hangs at rest, the material point it has lowest and where (``hanging``, on the
     cloth seen against ``reference``, the empty workspace).
     """
@@ -102,14 +115,18 @@ class _Tracking:
         if self.holds:  # what the robot holds and where, from its own kinematics
             ids = [v for v, _ in self.holds]
             points = list(transform_points(self._T_cam_world, np.stack([hand.gripper.position for _, hand in self.holds])))
+            R_cam_world = Rotation.from_matrix(self._T_cam_world[:3, :3])
+            quats = [(R_cam_world * Rotation.from_quat(hand.gripper.quat_xyzw)).as_quat() for _, hand in self.holds]
             lowest = None
             if len(self.holds) == 1 and self.hanging is not None:
                 lowest = self.hanging.update(seen_cloth_points(frame, self.reference), points[0])
             if lowest is not None and lowest[0] not in ids:
                 ids.append(lowest[0])
                 points.append(lowest[1])
+                quats.append(np.full(4, np.nan))  # found by the camera, held by no gripper
                 self.lowest_sent += 1
-            frame = dataclasses.replace(frame, held_vertices=np.array(ids, np.int32), held_points_m=np.stack(points))
+            frame = dataclasses.replace(frame, held_vertices=np.array(ids, np.int32), held_points_m=np.stack(points),
+                                        held_quats_xyzw=np.stack(quats))
         self.truth[frame.seq] = self.scene.cloth_vertices_cam()
         estimate = self.estimates[frame.seq] = self.link.estimate_of(frame)
         self.phases[frame.seq] = self.phase
@@ -245,6 +262,26 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
     plan = away[0]
     return plan, float(np.linalg.norm(fresh.canonical[plan.vertex_id] - fresh.canonical[held_new])), \
         int(plan.vertex_id), {}
+
+
+def _turn(scene, config, tracking: _Tracking, hand) -> bool:
+    """Turn the cloth hanging from ``hand`` by ``config.unfold.look_turn_deg``, the wrist
+    turning the gripper about its approach axis (``sim.laundry.unfold.rolled``), then hold
+    still while it comes to rest, every frame tracked; False, nothing moved, when the arm
+    cannot reach the turned pose."""
+    motion = config.unfold
+    quat = rolled(hand.gripper.quat_xyzw, motion.look_turn_deg)
+    if _out_of_reach(scene, hand.shoulder_world, rigid_transform(Rotation.from_quat(quat).as_matrix(),
+                                                                 hand.gripper.position), "the turn"):
+        return False
+    tracking.phase = "turn"
+    move_grippers(scene, [(hand.gripper, hand.gripper.position, quat)], motion.look_turn_deg / motion.turn_speed_deg_s,
+                  tracking)
+    tracking.phase = "hang"
+    for _ in range(max(1, round(motion.look_rest_s * scene.fps))):
+        scene.step_coming_to_rest()
+        tracking()
+    return True
 
 
 def _out_of_reach(scene, shoulder_world, T_world_gripper: np.ndarray, what: str) -> str | None:
@@ -401,9 +438,31 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
     plan_seq = tracking.last_seq
     weight_n = float(np.linalg.norm(hand1.gripper.cloth_force_n()))  # the wrist sensor, the cloth hanging at rest
 
-    # second corner
+    # second corner: looked for again, the cloth turned, while the frame confirms none
     second_plan, distance, second_vertex, details = _second_plan(scene, link, config, tracking, reference,
                                                                  held_vertex, hand1)
+    declined, turns = [], 0  # each look that gave no corner to take: why, and what the camera saw; quarter turns made
+
+    def decline() -> None:
+        declined.append({**details, "second_plan_error_mm": _lift_errors(
+            _frame_errors(tracking.estimates, tracking.truth, scene.faces, plan_seq), [plan_seq]),
+            "true_adjacent_seen": _true_adjacent_seen(scene, tracking.frames["last"], first.grasped_uv)})
+        log.info("look %d at the second corner: %s", len(declined), details["reason"])
+
+    for _ in range(motion.look_turns if config.regrasp == "adjacent" else 0):
+        if second_plan is not None or "visible" not in details:  # a plan, or nothing a turn would change
+            break
+        decline()
+        if not _turn(scene, config, tracking, hand1):
+            break
+        turns += 1
+        plan_seq = tracking.last_seq
+        second_plan, distance, second_vertex, details = _second_plan(scene, link, config, tracking, reference,
+                                                                     held_vertex, hand1)
+    else:
+        if second_plan is None and "visible" in details:
+            decline()
+    record["looks"] = {"count": turns + 1, "turned_deg": motion.look_turn_deg * turns, "declined": declined}
     tracking.keep("second plan")
     tracking.plans["second plan"] = second_plan
     record["tracking"] = _tracking_record(tracking, scene, lift_seqs, plan_seq)

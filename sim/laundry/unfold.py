@@ -8,7 +8,9 @@ as ``launch_scripts.trial_runner`` runs it:
    at robot speed (``UnfoldConfig.lift_speed_m_s``) until the cloth hangs clear
    (``lift_target``: the robot reads the cloth's size from the tracked mesh);
 2. it holds still while the cloth comes to rest (``UnfoldConfig.hang_s``);
-3. the second gripper takes the corner the planner chose (``second_fingertip``);
+3. the second gripper takes the corner the planner chose (``second_fingertip``); while the
+   frame confirms none, the first gripper's wrist turns the hanging cloth a quarter turn at
+   a time and the robot looks again (``UnfoldConfig.look_turns``, ``rolled``);
 4. both move apart horizontally, sideways to the camera, until the points they hold are
    as far apart as along the cloth's tracked mesh (``stretch_targets``), then on, slowly,
    while the force sensors at their wrists feel the edge between them slack
@@ -25,6 +27,7 @@ from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from perception.geometry import check_points, check_positive, check_transform, check_vector
 from sim.laundry.spec import TABLE_HALF_XY_M
@@ -70,6 +73,14 @@ class UnfoldConfig:
     max_stretch : the grippers stop, taut or not, this many times the planned material
         distance apart (a mesh laid on a folded cloth underestimates an edge's length)
     settle_s : time after the stretch before the cloth is judged
+    look_turns : how many more looks for the second corner while the frame confirms none
+        (the corner the tracked mesh gives was seen too little, or the measured surface does
+        not end where the mesh puts it): before each, the first gripper's wrist turns the
+        hanging cloth a further ``look_turn_deg`` about the gripper's approach axis, at
+        ``turn_speed_deg_s`` (mean), and holds still ``look_rest_s``, every frame tracked. A
+        hanging cloth shows the camera one face, or an edge, and hides what lies behind its
+        own layers; a corner out of sight at one look is in sight at another. 0: one look
+    look_turn_deg, turn_speed_deg_s, look_rest_s : see ``look_turns``
     shoulder_height_m : the drawn arms' shoulders above the table top
     shoulder_out_m : the drawn arms' shoulders' distance beyond the table's left and right edges
     panda_shoulder_height_m, panda_shoulder_out_m : the same for Franka Pandas (``sim.panda``;
@@ -92,18 +103,27 @@ class UnfoldConfig:
     pull_pause_s: float = 0.5
     max_stretch: float = 1.6
     settle_s: float = 1.0
+    look_turns: int = 3
+    look_turn_deg: float = 90.0
+    turn_speed_deg_s: float = 30.0
+    look_rest_s: float = 1.0
     shoulder_height_m: float = 0.45
     shoulder_out_m: float = 0.15
     panda_shoulder_height_m: float = 0.6
     panda_shoulder_out_m: float = -0.05
 
     def __post_init__(self):
-        for name in ("lift_speed_m_s", "stretch_s", "pull_speed_m_s", "taut_pull", "pull_from", "max_stretch"):
+        for name in ("lift_speed_m_s", "stretch_s", "pull_speed_m_s", "taut_pull", "pull_from", "max_stretch",
+                     "turn_speed_deg_s"):
             check_positive(f"UnfoldConfig.{name}", getattr(self, name))
         if int(self.taut_frames) < 2:
             raise ValueError(f"UnfoldConfig.taut_frames: expected an integer >= 2, got {self.taut_frames!r}")
+        if isinstance(self.look_turns, bool) or int(self.look_turns) != self.look_turns or self.look_turns < 0:
+            raise ValueError(f"UnfoldConfig.look_turns: expected an integer >= 0, got {self.look_turns!r}")
+        if not 0.0 < float(self.look_turn_deg) <= 120.0:  # a slerp between orientations takes the short way round
+            raise ValueError(f"UnfoldConfig.look_turn_deg: expected a value in (0, 120], got {self.look_turn_deg!r}")
         for name in ("hang_clearance_m", "hang_s", "pinch_overtravel_m", "pull_pause_s", "taut_stiffness_per_m", "settle_s",
-                     "shoulder_height_m", "shoulder_out_m", "panda_shoulder_height_m"):
+                     "look_rest_s", "shoulder_height_m", "shoulder_out_m", "panda_shoulder_height_m"):
             check_positive(f"UnfoldConfig.{name}", getattr(self, name), allow_zero=True)
 
 
@@ -145,6 +165,16 @@ def lift_target(grasped_world: np.ndarray, canonical: np.ndarray, held_vertex: i
     reach = float(np.linalg.norm(rest - rest[int(held_vertex)], axis=1).max())
     return np.array([p[0] if over_x_m is None else float(over_x_m), p[1],
                      float(table_top_m) + reach + config.hang_clearance_m])
+
+
+def rolled(quat_xyzw: np.ndarray, angle_deg: float) -> np.ndarray:
+    """(4,) float64 unit quaternion (x, y, z, w): the gripper orientation ``quat_xyzw`` (4,)
+    turned by ``angle_deg`` about its own approach (z) axis, as a robot's last wrist joint
+    turns it: the wrist and the arm behind it stay where they are."""
+    q = np.asarray(quat_xyzw, dtype=np.float64).reshape(4)
+    if not np.all(np.isfinite(q)) or not abs(float(np.linalg.norm(q)) - 1.0) < 1e-6:
+        raise ValueError(f"quat_xyzw: expected a unit quaternion (x, y, z, w), got {q.tolist()}")
+    return (Rotation.from_quat(q) * Rotation.from_rotvec([0.0, 0.0, np.radians(float(angle_deg))])).as_quat()
 
 
 def second_fingertip(position_world: np.ndarray, approach_world: np.ndarray, config: UnfoldConfig) -> np.ndarray:

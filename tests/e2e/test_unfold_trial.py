@@ -41,6 +41,10 @@ def test_an_unfold_trial_tracks_the_lift_and_is_judged_by_ground_truth(tmp_path,
     phases = record["tracking"]["frames_by_phase"]
     assert phases["lift"] >= 20 and phases["hang"] >= 20
     assert record["tracking"]["frames_tracked"] >= phases["lift"] + phases["hang"]
+    # each look after the first came after a quarter turn of the hanging cloth, every frame of it tracked
+    turns = record["looks"]["count"] - 1
+    assert record["looks"]["turned_deg"] == 90.0 * turns and phases.get("turn", 0) >= 60 * turns
+    assert len(record["looks"]["declined"]) >= turns
     assert record["first_grasp"]["held"] and record["corner_success"] == record["first_grasp"]["at_corner"]
     assert (tmp_path / f"unfold_seed{seed}_adjacent.png").stat().st_size > 10_000
     assert "unfolding by two adjacent corners" in (tmp_path / "summary.md").read_text()

@@ -4,6 +4,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from perception.hanging import HangingCue, farthest_vertex, lowest_point, lowest_tip
 from tests.unit.test_grasp_hanging import camera_looking_at, hanging_triangle, to_cam
@@ -140,14 +141,17 @@ def test_the_unfold_robot_sends_the_lowest_point_with_its_grip_only_while_one_ha
 
     camera = CameraInfo(width=64, height=48, K=np.array([[50.0, 0, 32], [0, 50.0, 24], [0, 0, 1]]))
     sent = []
+    T_world_cam = np.eye(4)
+    T_world_cam[:3, :3] = Rotation.from_rotvec([np.pi, 0.0, 0.0]).as_matrix()  # looking down
     scene = SimpleNamespace(
-        T_world_cam=np.eye(4), cloth_vertices_cam=lambda: np.zeros((4, 3)),
+        T_world_cam=T_world_cam, cloth_vertices_cam=lambda: np.zeros((4, 3)),
         render=lambda: RGBDFrame(rgb=np.zeros((48, 64, 3), np.uint8), depth_m=np.ones((48, 64), np.float32),
                                  camera=camera, seq=len(sent)))
     estimate = SimpleNamespace(vertices=np.zeros((4, 3)), confidence=1.0, lost=False)
     link = SimpleNamespace(estimate_of=lambda frame: sent.append(frame) or estimate)
     tracking = _Tracking(scene, link, {}, {}, {}, reference=scene.render())
-    hand = SimpleNamespace(gripper=SimpleNamespace(position=np.array([0.0, 0.0, 1.0])))
+    turned = Rotation.from_rotvec([0.0, 0.0, 0.5])  # a wrist turned about the world's vertical
+    hand = SimpleNamespace(gripper=SimpleNamespace(position=np.array([0.0, 0.0, -1.0]), quat_xyzw=turned.as_quat()))
     tracking.holds = [(3, hand)]
     shown = []
 
@@ -156,9 +160,17 @@ def test_the_unfold_robot_sends_the_lowest_point_with_its_grip_only_while_one_ha
 
     tracking.hanging = cue((7, np.array([0.0, 0.5, 1.2])))
     tracking()
-    np.testing.assert_allclose(shown[-1], [0.0, 0.0, 1.0])  # the gripper, in the camera frame
+    np.testing.assert_allclose(shown[-1], [0.0, 0.0, 1.0], atol=1e-12)  # the gripper, in the camera frame
     np.testing.assert_array_equal(sent[-1].held_vertices, [3, 7])
-    np.testing.assert_allclose(sent[-1].held_points_m, [[0.0, 0.0, 1.0], [0.0, 0.5, 1.2]])
+    np.testing.assert_allclose(sent[-1].held_points_m, [[0.0, 0.0, 1.0], [0.0, 0.5, 1.2]], atol=1e-12)
+    # the gripper's orientation in the camera frame, which looks down the world's vertical:
+    # its turn about that vertical is a turn the other way about the camera's axis; none for
+    # the point seen lowest
+    R_cam_gripper = Rotation.from_quat(sent[-1].held_quats_xyzw[0]).as_matrix()
+    np.testing.assert_allclose(R_cam_gripper, np.diag([1.0, -1.0, -1.0]) @ turned.as_matrix(), atol=1e-12)
+    np.testing.assert_allclose(Rotation.from_matrix(R_cam_gripper @ np.diag([1.0, -1.0, -1.0])).as_rotvec(),
+                               [0.0, 0.0, -0.5], atol=1e-12)
+    assert np.isnan(sent[-1].held_quats_xyzw[1]).all()
     assert tracking.lowest_sent == 1
     tracking.hanging = cue(None)  # not hanging at rest yet
     tracking()

@@ -30,7 +30,7 @@ from sim.laundry.controller import (
 )
 from sim.laundry.judge import MIN_STRETCH, TOLERANCE_M, judge_unfold, seen_by_camera
 from sim.laundry.truth import material_extent, rectangle_corners_uv, share_an_edge
-from sim.laundry.unfold import TautSensor, UnfoldConfig, arm_for, lift_target, shoulders, stretch_targets
+from sim.laundry.unfold import TautSensor, UnfoldConfig, arm_for, lift_target, rolled, shoulders, stretch_targets
 from tests.unit.test_grasp_adjacent import polygon_corner_of, polygon_estimate, towel_estimate, tshirt_estimate
 
 TOWEL, _ = rectangle_corners_uv(0.5, 0.4)
@@ -338,6 +338,24 @@ def test_move_grippers_steps_once_a_frame_and_ramps_smoothly_to_the_target():
     np.testing.assert_allclose(g2.targets[-1], [0.8, 0.0, 1.0])
 
 
+def test_a_wrist_turn_keeps_the_approach_and_turns_the_jaw_about_it():
+    tilted_down = Rotation.from_rotvec([0.4, -0.3, 0.0]) * Rotation.from_matrix(
+        np.column_stack([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]]))
+    q = tilted_down.as_quat()
+    R0, R1 = tilted_down.as_matrix(), Rotation.from_quat(rolled(q, 90.0)).as_matrix()
+    np.testing.assert_allclose(R1[:, 2], R0[:, 2], atol=1e-12)  # the approach, and so the wrist behind it, stay
+    np.testing.assert_allclose(R1[:, 0], R0[:, 1], atol=1e-12)  # the jaw's x turned a quarter turn about it
+    turned = q
+    for _ in range(4):
+        turned = rolled(turned, 90.0)
+    np.testing.assert_allclose(np.abs(turned @ q), 1.0, atol=1e-12)  # a full turn is no turn
+    with pytest.raises(ValueError, match="quat_xyzw: expected a unit quaternion"):
+        rolled([0.0, 0.0, 0.0, 2.0], 90.0)
+    for bad in ({"look_turns": -1}, {"look_turns": 1.5}, {"look_turn_deg": 180.0}, {"turn_speed_deg_s": 0.0}):
+        with pytest.raises(ValueError, match=f"UnfoldConfig.{next(iter(bad))}"):
+            UnfoldConfig(**bad)
+
+
 def test_a_robot_hand_is_drawn_and_its_mask_sent_as_the_known_occluder():
     spec = laundry_spec(2, view="room", state="flat")
     with LaundryScene(spec, noise=False, known_occluders=True) as scene:
@@ -386,6 +404,21 @@ def test_the_report_counts_corners_declined_that_were_in_sight():
     rep = report(records, "python -m launch_scripts.trials --task unfold", {"kind": "corner"})
     assert rep["summary"]["by_regrasp"]["adjacent"]["declined"] == {"trials": 3, "true_adjacent_corner_in_sight": 1}
     assert "| 3 (1) |" in markdown(rep)
+    assert "after turning" not in markdown(rep)
+
+
+def test_the_report_counts_second_corners_taken_only_after_turning_the_cloth():
+    from launch_scripts.trial_runner.report import markdown, report
+
+    records = [{**_unfold_record(seed, "adjacent", success, 50.0), "looks": {"count": looks},
+                "second_grasp": {"plan_cam": [0.0, 0.0, 1.0]}}
+               for seed, success, looks in ((0, True, 2), (2, False, 4), (4, True, 1))]
+    records.append({**_unfold_record(6, "adjacent", False, 50.0), "looks": {"count": 4},  # turned, still declined
+                    "second_grasp": {"declined": {"visible": 0.0}}})
+    rep = report(records, "python -m launch_scripts.trials --task unfold", {"kind": "corner"})
+    turned = rep["summary"]["by_regrasp"]["adjacent"]["taken_after_turning"]
+    assert (turned["n"], turned["successes"]) == (2, 1)
+    assert "2 trials took their second corner only after turning the hanging cloth" in markdown(rep)
 
 
 def test_the_lift_is_scored_for_wrong_frames_reported_with_confidence():
