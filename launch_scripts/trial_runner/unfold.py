@@ -104,6 +104,7 @@ class _Tracking:
         self.hanging: HangingCue | None = None  # while one hand holds the cloth: what hangs lowest, and where
         self.lowest_sent = 0  # frames that carried the hanging cloth's lowest point
         self._T_cam_world = invert_transform(scene.T_world_cam)
+        self._R_cam_world = Rotation.from_matrix(self._T_cam_world[:3, :3])
         self.frames, self.truth, self.estimates = frames, truth, estimates
         self.kept: dict[str, tuple] = {}
         self.plans: dict[str, GraspPlan | None] = {}  # the plan drawn on a kept frame
@@ -115,8 +116,7 @@ class _Tracking:
         if self.holds:  # what the robot holds and where, from its own kinematics
             ids = [v for v, _ in self.holds]
             points = list(transform_points(self._T_cam_world, np.stack([hand.gripper.position for _, hand in self.holds])))
-            R_cam_world = Rotation.from_matrix(self._T_cam_world[:3, :3])
-            quats = [(R_cam_world * Rotation.from_quat(hand.gripper.quat_xyzw)).as_quat() for _, hand in self.holds]
+            quats = [(self._R_cam_world * Rotation.from_quat(hand.gripper.quat_xyzw)).as_quat() for _, hand in self.holds]
             lowest = None
             if len(self.holds) == 1 and self.hanging is not None:
                 lowest = self.hanging.update(seen_cloth_points(frame, self.reference), points[0])
@@ -449,19 +449,15 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
             "true_adjacent_seen": _true_adjacent_seen(scene, tracking.frames["last"], first.grasped_uv)})
         log.info("look %d at the second corner: %s", len(declined), details["reason"])
 
-    for _ in range(motion.look_turns if config.regrasp == "adjacent" else 0):
-        if second_plan is not None or "visible" not in details:  # a plan, or nothing a turn would change
-            break
+    max_turns = motion.look_turns if config.regrasp == "adjacent" else 0
+    while second_plan is None and "visible" in details:  # no plan, and a corner a turn may show
         decline()
-        if not _turn(scene, config, tracking, hand1):
+        if turns == max_turns or not _turn(scene, config, tracking, hand1):
             break
         turns += 1
         plan_seq = tracking.last_seq
         second_plan, distance, second_vertex, details = _second_plan(scene, link, config, tracking, reference,
                                                                      held_vertex, hand1)
-    else:
-        if second_plan is None and "visible" in details:
-            decline()
     record["looks"] = {"count": turns + 1, "turned_deg": motion.look_turn_deg * turns, "declined": declined}
     tracking.keep("second plan")
     tracking.plans["second plan"] = second_plan
