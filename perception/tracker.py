@@ -21,7 +21,8 @@ Each frame:
    over the visible vertices, with a motion prior ``lambda_M Psi_M`` carrying the hidden
    ones, by the semi-implicit solver. Correspondences are re-weighted between solver
    stages with a shrinking inlier radius (as Pilet et al.), so a few wrong matches cannot
-   tear the mesh;
+   tear the mesh; between stages, the hidden part's prior is moved and turned as the cloth
+   seen around it moved (``perception.hidden_motion``);
 5. weigh the evidence for the result (``perception.confidence``); a lost tracker looks
    for the object again by itself.
 
@@ -80,6 +81,7 @@ from perception.geometry import (
     same_optics,
 )
 from perception.held_turn import HeldTurns, Turn
+from perception.hidden_motion import carried_prior
 from perception.initial_mesh import InitialisationError, mesh_from_mask, object_area_m2, place_mesh, spacing_for
 from perception.mesh import CanonicalMesh, barycentric_matrix
 from perception.observation import Observation, grey_of, observe
@@ -218,7 +220,8 @@ class TrackerConfig:
         (a hand on it, a tool) and treated as a known occluder, though no occluder mask names
         it (``perception.occluders``; where colour tells the cloth from its surroundings, a
         smaller step and a hue not the cloth's will do); 0 switches both off
-    lambda_m : weight of the motion prior that carries hidden and unobserved vertices
+    lambda_m : weight of the motion prior that carries hidden and unobserved vertices, moved and
+        turned with the cloth seen near them (``perception.hidden_motion``); 0: none
     lambda_l : weight of the stretch term that keeps the mesh's edge lengths (0: none, as in the
         paper, whose smoothness lets a mesh shrink onto the part of the object still seen)
     lambda_h : weight of the hold term: vertices the robot holds (``RGBDFrame.held_vertices``)
@@ -1036,9 +1039,14 @@ class MeshTracker:
         terms = self._data_terms(obs, corr, observed, V_pred, frame)
         V = V_pred
         stages = cfg.outlier_radii_m if corr is not None else (None,)
+        carry = cfg.lambda_m > 0 and not observed.all()
+        if carry and len(stages) == 1:
+            stages = (stages[0], stages[0])  # a stage to solve the hidden part moved with the rest
         budget = max(1, cfg.max_iterations // len(stages))
         iterations, energies = 0, {}
-        for radius in stages:
+        for k, radius in enumerate(stages):
+            if k and carry:
+                V, terms = self._carry_hidden(V_pred, V, terms, state, observed, frame)
             if radius is not None:
                 corr.weights = (corr.residuals(V) < radius).astype(np.float64)
             res = self._solver.minimise(V, terms, budget, cfg.tolerance_m,
@@ -1058,6 +1066,21 @@ class MeshTracker:
         carried, self._last_seen = self._carried(V, visible, frame)
         assessment = self._assess(V, frame, visible, mask, segment.leak, carried, extent.result(), differs, matched)
         return self._estimate(frame, V, energies, iterations, assessment, t0, visible)
+
+    def _carry_hidden(self, V_pred: np.ndarray, V: np.ndarray, terms: list, state: np.ndarray, observed: np.ndarray,
+                      frame: RGBDFrame) -> tuple[np.ndarray, list]:
+        """(V, terms) for the next solver stage: the vertices not ``observed`` (N,) bool moved
+        from the prediction ``V_pred`` (N, 3) as the cloth seen around them moved from it to
+        ``V`` (N, 3), the estimate so far (``perception.hidden_motion``), and the motion prior
+        in ``terms`` keeping them there. ``state`` (N,) the vertices' states at the prediction;
+        the vertices seen and those the robot holds are the evidence."""
+        seen = state == VISIBLE
+        if frame.held_vertices is not None and frame.held_vertices.size:
+            seen = seen.copy()
+            seen[frame.held_vertices] = True
+        moved = carried_prior(self.mesh.canonical, V_pred, V, seen, ~observed)
+        prior = MotionPriorTerm.around(self._edges, ~observed, moved)
+        return moved, [(w, prior if isinstance(term, MotionPriorTerm) else term) for w, term in terms]
 
     def _carried(self, V: np.ndarray, visible: np.ndarray, frame: RGBDFrame) -> tuple[float, np.ndarray]:
         """(share, last_seen): the share of the vertices of ``V`` (N, 3) that are hidden now
