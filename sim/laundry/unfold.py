@@ -210,6 +210,20 @@ def stretch_targets(first_world: np.ndarray, second_world: np.ndarray, material_
     return middle - half * across, middle + half * across
 
 
+def inward_pull_n(first_force_n: np.ndarray, second_force_n: np.ndarray, first_world: np.ndarray,
+                  second_world: np.ndarray) -> float:
+    """How hard the cloth pulls two grippers towards each other, newtons: the mean of their wrist
+    readings (3,) newtons, world frame, along the line between their positions (3,) world
+    metres; 0 when they are at the same place."""
+    axis = check_vector("second_world", second_world) - check_vector("first_world", first_world)
+    apart = float(np.linalg.norm(axis))
+    if apart < 1e-9:
+        return 0.0
+    axis = axis / apart
+    return 0.5 * (float(np.dot(check_vector("first_force_n", first_force_n), axis))
+                  - float(np.dot(check_vector("second_force_n", second_force_n), axis)))
+
+
 class TautSensor:
     """Whether the edge between two grippers pulling apart is taut, from their wrist force
     sensors (``sim.physics.Gripper.cloth_force_n``), frame after frame.
@@ -235,13 +249,10 @@ class TautSensor:
                  second_world: np.ndarray) -> bool:
         """Add one frame's readings (3,) newtons, world frame, with the grippers' positions (3,)
         world metres; True when the edge between them is taut (class docstring)."""
-        axis = check_vector("second_world", second_world) - check_vector("first_world", first_world)
-        apart = float(np.linalg.norm(axis))
+        apart = float(np.linalg.norm(check_vector("second_world", second_world) - check_vector("first_world", first_world)))
         if apart < 1e-9:
             return False
-        axis = axis / apart
-        inwards = 0.5 * (float(np.dot(check_vector("first_force_n", first_force_n), axis))
-                         - float(np.dot(check_vector("second_force_n", second_force_n), axis)))
+        inwards = inward_pull_n(first_force_n, second_force_n, first_world, second_world)
         self._readings.append((apart, inwards))
         if len(self._readings) < self._readings.maxlen:
             return False

@@ -30,7 +30,16 @@ from sim.laundry.controller import (
 )
 from sim.laundry.judge import MIN_STRETCH, TOLERANCE_M, judge_unfold, seen_by_camera
 from sim.laundry.truth import material_extent, rectangle_corners_uv, share_an_edge
-from sim.laundry.unfold import TautSensor, UnfoldConfig, arm_for, lift_target, rolled, shoulders, stretch_targets
+from sim.laundry.unfold import (
+    TautSensor,
+    UnfoldConfig,
+    arm_for,
+    inward_pull_n,
+    lift_target,
+    rolled,
+    shoulders,
+    stretch_targets,
+)
 from tests.unit.test_grasp_adjacent import polygon_corner_of, polygon_estimate, towel_estimate, tshirt_estimate
 
 TOWEL, _ = rectangle_corners_uv(0.5, 0.4)
@@ -263,6 +272,17 @@ def test_stretch_targets_are_level_apart_by_the_material_distance_and_across_the
     assert abs(np.dot(tb - ta, across / np.linalg.norm(across))) == pytest.approx(0.45)
     assert np.dot(tb - ta, across) * np.dot(b - a, across) > 0
     np.testing.assert_allclose(0.5 * (ta + tb)[:2], 0.5 * (a + b)[:2])
+
+
+def test_the_inward_pull_is_what_draws_the_grippers_together_along_the_line_between_them():
+    a, b = np.array([0.1, 0.2, 0.8]), np.array([0.1, 0.6, 0.8])  # apart along y
+    down = np.array([0.0, 0.0, -2.0])  # the weight each carries: no pull along the line
+    assert inward_pull_n(down + [0.3, 1.0, 0.0], down - [0.0, 1.0, 0.0], a, b) == pytest.approx(1.0)
+    assert inward_pull_n(down - [0.0, 0.5, 0.0], down + [0.0, 0.5, 0.0], a, b) == pytest.approx(-0.5)  # pushed apart
+    assert inward_pull_n(down + [0.0, 1.0, 0.0], down, b, a) == pytest.approx(-0.5)  # the same readings, swapped ends
+    assert inward_pull_n(down, down, a, a) == 0.0
+    with pytest.raises(ValueError, match="first_force_n"):
+        inward_pull_n(np.zeros(2), down, a, b)
 
 
 def test_taut_when_the_pull_is_strong_and_grows_steeply_as_the_grippers_part():
