@@ -506,8 +506,9 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
             scene.step_coming_to_rest()
             tracking()
         g1, g2 = hand1.gripper, hand2.gripper
-        # how hard the edge pulls with the grippers as far apart as the tracked mesh says it is
-        # long: about the cloth's weight on an edge between two corners, more on a shorter one
+        # How hard the edge pulls with the grippers as far apart as the tracked mesh says it is
+        # long. Recorded, not used yet: whether it tells a second grasp off its corner (an edge
+        # shorter than planned, stretched already) from a right one is to be measured.
         pull_at_plan = inward_pull_n(g1.cloth_force_n(), g2.cloth_force_n(), g1.position, g2.position) / weight_n
         sensor = TautSensor(weight_n, motion)
         felt_taut = pull_apart(scene, g1, g2, motion.pull_speed_m_s, motion.max_stretch * distance,
