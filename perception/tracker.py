@@ -1079,8 +1079,8 @@ class MeshTracker:
             seen = seen.copy()
             seen[frame.held_vertices] = True
         moved = carried_prior(self.mesh.canonical, V_pred, V, seen, ~observed)
-        prior = MotionPriorTerm.around(self._edges, ~observed, moved)
-        return moved, [(w, prior if isinstance(term, MotionPriorTerm) else term) for w, term in terms]
+        # the same edges and anchors, around the moved prior
+        return moved, [(w, replace(term, prior=moved) if isinstance(term, MotionPriorTerm) else term) for w, term in terms]
 
     def _carried(self, V: np.ndarray, visible: np.ndarray, frame: RGBDFrame) -> tuple[float, np.ndarray]:
         """(share, last_seen): the share of the vertices of ``V`` (N, 3) that are hidden now
