@@ -137,7 +137,7 @@ OPTION_FIELDS = ("edge_approach", "pinch_inset_m", "T_world_cam", "workspace_min
 
 def arguments_from_config(config: GraspPlannerConfig) -> list[str]:
     """The planner options (``build_parser``) that give a service ``config``: the inverse of
-    ``config_from_args``, every number written exactly (``repr``). ``config.kind`` is not
+    ``config_from_args``, every number written exactly (shortest round trip, positional). ``config.kind`` is not
     among them: the kinds served are ``--kinds``.
 
     raises ValueError naming a field that differs from its default but has no option
@@ -151,7 +151,9 @@ def arguments_from_config(config: GraspPlannerConfig) -> list[str]:
                              f"{getattr(defaults, f.name)!r})")
 
     def numbers(values) -> list[str]:
-        return [repr(float(v)) for v in np.ravel(values)]
+        # positional, never "-1.2e-16": argparse takes a negative number in exponent notation
+        # for an option and the list option before it ends short (a camera looking straight down)
+        return [np.format_float_positional(float(v), unique=True, trim="0") for v in np.ravel(values)]
 
     argv = ["--edge-approach", config.edge_approach, "--pinch-inset-m", *numbers(config.pinch_inset_m),
             "--T-world-cam", *numbers(config.T_world_cam), "--up", *numbers(config.up_world)]

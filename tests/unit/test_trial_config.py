@@ -39,6 +39,13 @@ def test_the_planner_options_give_the_service_the_trial_planner():
     served = config_from_args(build_parser().parse_args(arguments_from_config(config)))
     for f in dataclasses.fields(GraspPlannerConfig):
         assert np.array_equal(getattr(served, f.name), getattr(config, f.name)), f.name
+    # a camera looking straight down: its rotation holds tiny negative numbers that, written
+    # "-1.2e-16", argparse would take for an option
+    c, s = math.cos(-math.pi), math.sin(-math.pi)
+    down = np.array([[1.0, 0.0, 0.0, 0.1], [0.0, c, -s, -0.2], [0.0, s, c, 1.9], [0.0, 0.0, 0.0, 1.0]])
+    assert down[2, 1] < 0 and abs(down[2, 1]) < 1e-15
+    served = config_from_args(build_parser().parse_args(arguments_from_config(GraspPlannerConfig(T_world_cam=down))))
+    assert np.array_equal(served.T_world_cam, down)
     unbounded = config_from_args(build_parser().parse_args(arguments_from_config(GraspPlannerConfig())))
     assert np.all(np.isinf(unbounded.workspace_min_world))
     with pytest.raises(ValueError, match="GraspPlannerConfig.clearance_radius_m: the planner service has no option"):
