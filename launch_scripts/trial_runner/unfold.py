@@ -75,7 +75,6 @@ from sim.laundry.truth import material_extent, nearest_corner, share_an_edge
 from sim.laundry.unfold import (
     TautSensor,
     arm_for,
-    inward_pull_n,
     lift_target,
     rolled,
     second_fingertip,
@@ -489,7 +488,7 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
     record["second_grasp"].update(_grasp_record(second, scene))
 
     # stretch: to the tracked mesh's distance, then on until the wrists feel the edge taut
-    felt_taut = pull_at_plan = None
+    felt_taut = None
     if second.grasped_uv is not None:
         if distance is None or not math.isfinite(distance) or distance <= 0:
             distance = float(np.linalg.norm(hand1.gripper.position - hand2.gripper.position))
@@ -506,10 +505,6 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
             scene.step_coming_to_rest()
             tracking()
         g1, g2 = hand1.gripper, hand2.gripper
-        # How hard the edge pulls with the grippers as far apart as the tracked mesh says it is
-        # long. Recorded, not used yet: whether it tells a second grasp off its corner (an edge
-        # shorter than planned, stretched already) from a right one is to be measured.
-        pull_at_plan = inward_pull_n(g1.cloth_force_n(), g2.cloth_force_n(), g1.position, g2.position) / weight_n
         sensor = TautSensor(weight_n, motion)
         felt_taut = pull_apart(scene, g1, g2, motion.pull_speed_m_s, motion.max_stretch * distance,
                                lambda: sensor(g1.cloth_force_n(), g2.cloth_force_n(), g1.position, g2.position),
@@ -530,8 +525,7 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
                         "first_error_m": _finite(verdict.first_error_m), "second_error_m": _finite(verdict.second_error_m),
                         "adjacent": verdict.adjacent, "stretch": round(verdict.stretch, 3),
                         "lowest_clearance_m": round(clearance, 4), "held_apart_m": round(apart, 4),
-                        "felt_taut": felt_taut, "cloth_weight_n": round(weight_n, 3),
-                        "pull_at_plan_weights": None if pull_at_plan is None else round(pull_at_plan, 3)}
+                        "felt_taut": felt_taut, "cloth_weight_n": round(weight_n, 3)}
     record["tracking"].update(_tracking_record(tracking, scene, lift_seqs, plan_seq, errors=False))
     timings = [estimates[s].timing_ms for s in tracking.phases]
     record["timing"]["tracking_ms"] = round(float(np.median(timings)), 1) if timings else None
