@@ -111,7 +111,7 @@ def _unfold_summary(records: list[dict], median) -> dict:
     """Success, first grasps at a corner, tracking error during the lift and at the second
     plan (medians over trials of their mean and p95, mm) and trial time of unfold trials;
     of the trials that declined the corner they would have taken (unseen, or not confirmed
-    by the measured surface) at every look, how many had a true adjacent corner in the
+    by the measured surface, at every look; or no corner of the cloth), how many had a true adjacent corner in the
     camera's sight all the same (``tracking.true_adjacent_seen``); how many took a second
     corner only after turning the cloth (``looks``), and how many of those succeeded; and,
     summed over the trials' lifts and hangs up to the second plan (``tracking.honesty``), the

@@ -14,7 +14,9 @@ with each frame as the known occluder. The second corner is chosen by
   along the tracked mesh's canonical outline, at their tracked positions, asked
   ``even_if_lost``; the robot takes a reachable one joined to the held corner by a straight
   edge, sharp rather than blunt, seen by the camera and confirmed by the measured surface
-  (``sim.laundry.controller.stretchable_corner``); when the one it would take was not seen
+  (``sim.laundry.controller.stretchable_corner``), and never one the canonical outline says is
+  where two edges meet rather than a corner (``why_not_a_corner``: blunt at the end of a long
+  edge, a T-shirt's neck corner); when the one it would take was not seen
   enough (``why_not_seen``) or not confirmed (``why_not_confirmed``), the first gripper turns
   the hanging cloth a quarter turn at its wrist and the robot asks again, up to
   ``UnfoldConfig.look_turns`` times, and grasps nothing if no look gave a corner to take;
@@ -24,7 +26,8 @@ with each frame as the known occluder. The second corner is chosen by
   planner's best corner away from the first gripper is taken, without the lift's history.
 
 The record gains ``task``, ``regrasp``, ``first_grasp``, ``second_grasp`` (for a corner
-declined, only ``declined``: its visibility and measured tip's offset at the last look),
+declined, only ``declined``: its visibility and measured tip's offset at the last look, or
+its angle and edge length when it was no corner),
 ``looks`` (how many times the robot asked for the second corner, and how far it turned the
 cloth in all, degrees), ``unfold``
 (the judgement), ``tracking`` (error during the lift and at the second plan, frames
@@ -64,7 +67,9 @@ from sim.laundry.controller import (
     corner_to_lift_first,
     default_controller,
     edge_straightness,
+    outline_window_m,
     stretchable_corner,
+    why_not_a_corner,
     why_not_confirmed,
     why_not_seen,
 )
@@ -210,8 +215,14 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
         held_cam = transform_points(invert_transform(scene.T_world_cam), first_hand.gripper.position[None])[0]
         if not candidates:
             return None, None, -1, {"reason": "the planner found no adjacent corner on the estimate's outline"}
-        angles_deg = corner_angles_deg(estimate)
-        best = stretchable_corner(candidates, estimate.canonical, held_vertex, held_cam, angles_deg)
+        angles_deg, window_m = corner_angles_deg(estimate), outline_window_m(estimate)
+        best = stretchable_corner(candidates, estimate.canonical, held_vertex, held_cam, angles_deg, window_m)
+        blunt = why_not_a_corner(best, angles_deg, window_m)
+        if blunt:  # the canonical outline says so: no other look changes it
+            return None, None, -1, {"reason": f"adjacent corner not a corner of the cloth ({blunt}): not grasped",
+                                    "angle_deg": round(angles_deg[int(best.plan.vertex_id)], 1),
+                                    "material_distance_m": round(best.material_distance_m, 4),
+                                    "n_candidates": len(reply.candidates)}
         seen = {"visible": round(best.visible, 3), "n_candidates": len(reply.candidates),
                 "tip_offset_m": None if best.tip_offset_m is None else round(best.tip_offset_m, 4)}
         unseen = why_not_seen(best)
@@ -465,7 +476,7 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
     record["tracking"]["true_adjacent_seen"] = _true_adjacent_seen(scene, tracking.frames["last"], first.grasped_uv)
     if second_plan is None:
         record["failure"] = details.get("reason", "no second grasp")
-        if "visible" in details:  # a corner declined: what the robot knew of it
+        if "visible" in details or "angle_deg" in details:  # a corner declined: what the robot knew of it
             record["second_grasp"] = {"declined": {k: v for k, v in details.items() if k != "reason"}}
         return
     record["second_grasp"] = {"plan_cam": [round(float(v), 4) for v in second_plan.position],

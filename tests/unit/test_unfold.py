@@ -19,13 +19,16 @@ from sim.laundry.controller import (
     MIN_CORNER_VISIBLE,
     MIN_EDGE_STRAIGHTNESS,
     NEAR_BEST_SCORE,
+    BLUNT_CORNER_MIN_ANGLE_DEG,
     SURE_CORNER_MAX_ANGLE_DEG,
     closely_confirmed,
     corner_angles_deg,
     corner_to_lift_first,
     edge_straightness,
+    outline_window_m,
     seen_enough,
     stretchable_corner,
+    why_not_a_corner,
     why_not_confirmed,
 )
 from sim.laundry.judge import MIN_STRETCH, TOLERANCE_M, judge_unfold, seen_by_camera
@@ -122,6 +125,38 @@ def test_held_by_a_cuff_corner_a_shirt_is_stretched_along_its_cuff_not_to_its_ne
         assert stretchable_corner(order, est.canonical, held, angles_deg=angles_deg) is candidates[16]
     # without the angles the planner's order decides
     assert stretchable_corner((candidates[0], candidates[16]), est.canonical, held) is candidates[0]
+
+
+def test_a_blunt_corner_at_the_end_of_a_long_edge_is_no_corner_but_a_short_edge_blurs_a_square_one():
+    est, outline = tshirt_estimate()
+    corners = GraspPlanner().corners(est)
+    held = int(corners[polygon_corner_of(est, corners, outline).index(17)])
+    candidates = {polygon_corner_of(est, [c.plan.vertex_id], outline)[0]: c
+                  for c in adjacent_corners(est, held).candidates}
+    neck, cuff = candidates[0], candidates[16]
+    angles_deg, window_m = corner_angles_deg(est), outline_window_m(est)
+    assert window_m == pytest.approx(4 * 0.02)  # the planner's 4 spacings on this 2 cm mesh
+    assert angles_deg[neck.plan.vertex_id] > BLUNT_CORNER_MIN_ANGLE_DEG and neck.material_distance_m > 2 * window_m
+    assert "not a corner" in why_not_a_corner(neck, angles_deg, window_m)
+    assert why_not_a_corner(cuff, angles_deg, window_m) == ""
+    towel = towel_estimate()
+    towel_held = int(GraspPlanner().corners(towel)[0])
+    assert all(why_not_a_corner(c, corner_angles_deg(towel), outline_window_m(towel)) == ""
+               for c in adjacent_corners(towel, towel_held).candidates)
+    # the cuff's corner read blunt, as on a shirt's 8-11 cm cuff: no corner only where the
+    # edge is long enough for the angle to be the corner's own
+    blurred = {**angles_deg, cuff.plan.vertex_id: 127.0}
+    short = dataclasses.replace(cuff, material_distance_m=1.5 * window_m)
+    assert why_not_a_corner(short, blurred, window_m) == ""
+    assert why_not_a_corner(dataclasses.replace(cuff, material_distance_m=2.5 * window_m), blurred, window_m)
+    assert why_not_a_corner(cuff, {**angles_deg, cuff.plan.vertex_id: BLUNT_CORNER_MIN_ANGLE_DEG}, window_m) == ""
+    # both read blunt, the short cuff unseen: taken before the neck though the neck is seen
+    unseen = dataclasses.replace(short, visible=0.0, tip_offset_m=None)
+    assert neck.visible > MIN_CORNER_VISIBLE
+    for order in ((neck, unseen), (unseen, neck)):
+        assert stretchable_corner(order, est.canonical, held, angles_deg=blurred, window_m=window_m) is unseen
+    # without the window the camera decides between two blunt corners
+    assert stretchable_corner((unseen, neck), est.canonical, held, angles_deg=blurred) is neck
 
 
 def test_a_reachable_corner_comes_before_a_straight_edge():
