@@ -13,13 +13,13 @@ from sim.cloth_mesh import rectangle_cloth
 from sim.grasp_execution import move_grippers
 from sim.laundry import LaundryScene, laundry_spec
 from sim.laundry.controller import (
+    BLUNT_CORNER_MIN_ANGLE_DEG,
     CLOSE_TIP_M,
     MAX_REACH_OVER_MATERIAL,
     MAX_TIP_OFFSET_M,
     MIN_CORNER_VISIBLE,
     MIN_EDGE_STRAIGHTNESS,
     NEAR_BEST_SCORE,
-    BLUNT_CORNER_MIN_ANGLE_DEG,
     SURE_CORNER_MAX_ANGLE_DEG,
     closely_confirmed,
     corner_angles_deg,
