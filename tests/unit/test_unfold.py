@@ -107,16 +107,23 @@ def test_held_by_a_hem_corner_a_shirt_is_stretched_along_its_hem_not_up_its_side
     assert stretchable_corner((), est.canonical, held) is None
 
 
+def _shirt_held_by_a_cuff_corner():
+    """The test T-shirt held by its left cuff's top corner (outline point 17): (estimate, held
+    vertex, {outline point: AdjacentCorner}); its candidates are the cuff's other corner (16)
+    and the neck corner (0)."""
+    est, outline = tshirt_estimate()
+    corners = GraspPlanner().corners(est)
+    held = int(corners[polygon_corner_of(est, corners, outline).index(17)])
+    return est, held, {polygon_corner_of(est, [c.plan.vertex_id], outline)[0]: c
+                       for c in adjacent_corners(est, held).candidates}
+
+
 def test_held_by_a_cuff_corner_a_shirt_is_stretched_along_its_cuff_not_to_its_neck():
     # Outline points of the T-shirt: left cuff top 17, left cuff bottom 16, neck corner 0.
     # From the cuff's top corner the sleeve's top runs as straight to the neck corner as the
     # cuff does to its other corner, but no edge of the shirt ends at the neck corner: blunt
     # (125 degrees), where the cuff's corners are about square.
-    est, outline = tshirt_estimate()
-    corners = GraspPlanner().corners(est)
-    held = int(corners[polygon_corner_of(est, corners, outline).index(17)])
-    candidates = {polygon_corner_of(est, [c.plan.vertex_id], outline)[0]: c
-                  for c in adjacent_corners(est, held).candidates}
+    est, held, candidates = _shirt_held_by_a_cuff_corner()
     assert sorted(candidates) == [0, 16]
     assert all(edge_straightness(c, est.canonical, held) >= MIN_EDGE_STRAIGHTNESS for c in candidates.values())
     angles_deg = corner_angles_deg(est)
@@ -128,11 +135,7 @@ def test_held_by_a_cuff_corner_a_shirt_is_stretched_along_its_cuff_not_to_its_ne
 
 
 def test_a_blunt_corner_at_the_end_of_a_long_edge_is_no_corner_but_a_short_edge_blurs_a_square_one():
-    est, outline = tshirt_estimate()
-    corners = GraspPlanner().corners(est)
-    held = int(corners[polygon_corner_of(est, corners, outline).index(17)])
-    candidates = {polygon_corner_of(est, [c.plan.vertex_id], outline)[0]: c
-                  for c in adjacent_corners(est, held).candidates}
+    est, held, candidates = _shirt_held_by_a_cuff_corner()
     neck, cuff = candidates[0], candidates[16]
     angles_deg, window_m = corner_angles_deg(est), outline_window_m(est)
     assert window_m == pytest.approx(4 * 0.02)  # the planner's 4 spacings on this 2 cm mesh
