@@ -444,11 +444,14 @@ def corner_angles(
     boundary,
     max_angle_rad: float = DEFAULT_CORNER_MAX_ANGLE_RAD,
     window_spacings: float = DEFAULT_WINDOW_SPACINGS,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, float]:
     """The corners of ``find_corners`` (same arguments, same errors) with the interior angle
     of the smoothed outline at each.
 
-    Returns (C,) int64 vertex ids in outline order and (C,) float64 interior angles, radians.
+    Returns (C,) int64 vertex ids in outline order, (C,) float64 interior angles, radians,
+    and the half-length in metres of the chords that measured them (``window_spacings``
+    canonical spacings; less on a loop too small for it): an angle is the corner's own only
+    where the outline runs straight for that long on either side.
     """
     outline = build_outline(canonical, faces, boundary, max_angle_rad, window_spacings)
-    return outline.corner_ids, outline.interior_angle_rad[outline.corner_rows]
+    return outline.corner_ids, outline.interior_angle_rad[outline.corner_rows], outline.window_m

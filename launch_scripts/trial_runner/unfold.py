@@ -67,7 +67,6 @@ from sim.laundry.controller import (
     corner_to_lift_first,
     default_controller,
     edge_straightness,
-    outline_window_m,
     stretchable_corner,
     why_not_a_corner,
     why_not_confirmed,
@@ -215,7 +214,7 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
         held_cam = transform_points(invert_transform(scene.T_world_cam), first_hand.gripper.position[None])[0]
         if not candidates:
             return None, None, -1, {"reason": "the planner found no adjacent corner on the estimate's outline"}
-        angles_deg, window_m = corner_angles_deg(estimate), outline_window_m(estimate)
+        angles_deg, window_m = corner_angles_deg(estimate)
         best = stretchable_corner(candidates, estimate.canonical, held_vertex, held_cam, angles_deg, window_m)
         blunt = why_not_a_corner(best, angles_deg, window_m)
         if blunt:  # the canonical outline says so: no other look changes it

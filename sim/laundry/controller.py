@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from grasping import GraspPlannerConfig, corner_angles, lowest_point_grasp
+from grasping import corner_angles, lowest_point_grasp
 from ipc.messages import AdjacentCorner, GraspPlan, GraspPlanReply
-from perception.geometry import invert_transform, transform_points, unique_edges
+from perception.geometry import invert_transform, transform_points
 from sim.laundry.segment import cloth_points, mask_from_reference
 
 #: Turns of a held cloth, after the first look, before its lowest point is chosen: every
@@ -184,21 +184,11 @@ def why_not_confirmed(corner: AdjacentCorner, held_point_cam: np.ndarray) -> str
 BLUNT_CORNER_MIN_ANGLE_DEG = 120.0
 
 
-def outline_window_m(estimate) -> float:
-    """Half-length, metres, of the chords over which ``corner_angles_deg`` measures the
-    canonical outline's turn: the planner's default window
-    (``GraspPlannerConfig.outline_window_spacings``) times the canonical mesh's median edge."""
-    edges = unique_edges(np.asarray(estimate.faces, dtype=np.int64))
-    canonical = np.asarray(estimate.canonical, dtype=np.float64)
-    spacing = float(np.median(np.linalg.norm(canonical[edges[:, 0]] - canonical[edges[:, 1]], axis=1)))
-    return GraspPlannerConfig.outline_window_spacings * spacing
-
-
 def why_not_a_corner(corner: AdjacentCorner, angles_deg: dict, window_m: float) -> str:
     """Why the outline corner ``corner`` is no corner of the cloth, one line; "" when it may
     be one. It is not when its interior angle (``angles_deg``, ``corner_angles_deg``) is
     blunter than ``BLUNT_CORNER_MIN_ANGLE_DEG`` and the edge from the held point to it is at
-    least twice ``window_m`` long (``outline_window_m``): then the chords that measured the
+    least twice ``window_m`` long (the chords' half-length, ``corner_angles_deg``): then the chords that measured the
     angle lie on that edge and the angle is its own. On a shorter edge they reach past the
     corner at its other end and read a square corner blunt (a T-shirt's cuff, 8-11 cm: its
     corners measure 88-130 degrees on the 1.5 cm meshes of the unfold trials)."""
@@ -209,11 +199,12 @@ def why_not_a_corner(corner: AdjacentCorner, angles_deg: dict, window_m: float) 
             f"{100 * corner.material_distance_m:.0f} cm long: where two edges meet, not a corner")
 
 
-def corner_angles_deg(estimate) -> dict[int, float]:
+def corner_angles_deg(estimate) -> tuple[dict[int, float], float]:
     """{vertex id: interior angle in degrees} of the corners of ``estimate``'s canonical
-    outline (``grasping.corner_angles``)."""
-    ids, angles = corner_angles(estimate.canonical, estimate.faces, estimate.boundary)
-    return dict(zip(ids.tolist(), np.degrees(angles).tolist()))
+    outline, and the half-length in metres of the chords that measured them
+    (``grasping.corner_angles``)."""
+    ids, angles, window_m = corner_angles(estimate.canonical, estimate.faces, estimate.boundary)
+    return dict(zip(ids.tolist(), np.degrees(angles).tolist())), window_m
 
 
 def stretchable_corner(candidates, canonical: np.ndarray, held_vertex: int,
@@ -224,7 +215,7 @@ def stretchable_corner(candidates, canonical: np.ndarray, held_vertex: int,
     straight edge (``MIN_EDGE_STRAIGHTNESS``), which pulling the two corners apart stretches
     (a T-shirt's hem, not the side seam that bends under the sleeve), among those, given the
     canonical outline's corner angles (``angles_deg``, ``corner_angles_deg``), one that may be a
-    corner of the cloth (``why_not_a_corner``, with ``window_m``, ``outline_window_m``), among
+    corner of the cloth (``why_not_a_corner``, with the chords' ``window_m``), among
     those a sharp one
     (``SURE_CORNER_MAX_ANGLE_DEG``: a cuff's other corner, not the blunt corner where a
     shirt's shoulder meets its neckline, which no edge of the shirt ends at), among those one
@@ -276,7 +267,7 @@ def corner_to_lift_first(candidates, estimate, T_world_cam: np.ndarray) -> Grasp
     """
     if not candidates:
         return None
-    angle_deg = corner_angles_deg(estimate)
+    angle_deg, _ = corner_angles_deg(estimate)
     best = candidates[0].score
     sure = [c for c in candidates if c.score >= best - NEAR_BEST_SCORE
             and angle_deg.get(int(c.vertex_id), 180.0) <= SURE_CORNER_MAX_ANGLE_DEG]

@@ -182,7 +182,7 @@ def test_corner_angles_measure_a_trapezoid_s_corners_at_the_same_vertices_as_fin
     # a right trapezoid: 60, 90, 90 and 120 degrees at its polygon vertices 0-3
     polygon = np.array([[0.0, 0.0], [0.5, 0.0], [0.5, 0.4], [0.4 / np.tan(np.radians(60.0)), 0.4]])
     canonical, faces, boundary = hex_mesh(polygon)
-    ids, angles = corner_angles(canonical, faces, boundary)
+    ids, angles, _ = corner_angles(canonical, faces, boundary)
     assert np.array_equal(ids, find_corners(canonical, faces, boundary))
     which, _ = nearest_polygon_vertex(canonical[ids], polygon)
     measured = dict(zip(which, np.degrees(angles)))

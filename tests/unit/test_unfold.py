@@ -25,7 +25,6 @@ from sim.laundry.controller import (
     corner_angles_deg,
     corner_to_lift_first,
     edge_straightness,
-    outline_window_m,
     seen_enough,
     stretchable_corner,
     why_not_a_corner,
@@ -126,7 +125,7 @@ def test_held_by_a_cuff_corner_a_shirt_is_stretched_along_its_cuff_not_to_its_ne
     est, held, candidates = _shirt_held_by_a_cuff_corner()
     assert sorted(candidates) == [0, 16]
     assert all(edge_straightness(c, est.canonical, held) >= MIN_EDGE_STRAIGHTNESS for c in candidates.values())
-    angles_deg = corner_angles_deg(est)
+    angles_deg, _ = corner_angles_deg(est)
     assert angles_deg[candidates[0].plan.vertex_id] > SURE_CORNER_MAX_ANGLE_DEG > angles_deg[candidates[16].plan.vertex_id]
     for order in ((candidates[0], candidates[16]), (candidates[16], candidates[0])):
         assert stretchable_corner(order, est.canonical, held, angles_deg=angles_deg) is candidates[16]
@@ -137,14 +136,14 @@ def test_held_by_a_cuff_corner_a_shirt_is_stretched_along_its_cuff_not_to_its_ne
 def test_a_blunt_corner_at_the_end_of_a_long_edge_is_no_corner_but_a_short_edge_blurs_a_square_one():
     est, held, candidates = _shirt_held_by_a_cuff_corner()
     neck, cuff = candidates[0], candidates[16]
-    angles_deg, window_m = corner_angles_deg(est), outline_window_m(est)
+    angles_deg, window_m = corner_angles_deg(est)
     assert window_m == pytest.approx(4 * 0.02)  # the planner's 4 spacings on this 2 cm mesh
     assert angles_deg[neck.plan.vertex_id] > BLUNT_CORNER_MIN_ANGLE_DEG and neck.material_distance_m > 2 * window_m
     assert "not a corner" in why_not_a_corner(neck, angles_deg, window_m)
     assert why_not_a_corner(cuff, angles_deg, window_m) == ""
     towel = towel_estimate()
     towel_held = int(GraspPlanner().corners(towel)[0])
-    assert all(why_not_a_corner(c, corner_angles_deg(towel), outline_window_m(towel)) == ""
+    assert all(why_not_a_corner(c, *corner_angles_deg(towel)) == ""
                for c in adjacent_corners(towel, towel_held).candidates)
     # the cuff's corner read blunt, as on a shirt's 8-11 cm cuff: no corner only where the
     # edge is long enough for the angle to be the corner's own
