@@ -10,7 +10,7 @@ from scipy.spatial.transform import Rotation
 
 from ipc.messages import CameraInfo, RGBDFrame
 from perception import MeshTracker, TrackerConfig
-from perception.background import differs_from_background, seen_through
+from perception.background import COLOUR_TOL, differs_from_background, seen_through
 from perception.confidence import (
     FLOOR,
     MIN_DISAGREEING,
@@ -81,11 +81,9 @@ def test_differs_from_background_finds_what_is_not_the_empty_workspace(tex):
                                                            camera=CameraInfo.from_fov(10, 10, 1.0)))
 
 
-
 def test_a_pixel_differs_in_colour_by_the_euclidean_distance_over_all_three_channels():
     """Flat colours (the 3x3 blur leaves them as they are) at distances around the tolerance,
     the difference spread over one, two and three channels: the test is the Euclidean one."""
-    from perception.background import COLOUR_TOL
     cam = CameraInfo.from_fov(30, 20, 1.0)
     grey = np.full((20, 30, 3), 100, np.uint8)
     depth = np.full((20, 30), 2.0, np.float32)
@@ -96,6 +94,7 @@ def test_a_pixel_differs_in_colour_by_the_euclidean_distance_over_all_three_chan
         rgb = (grey.astype(int) + np.array(step)).astype(np.uint8)
         found = differs_from_background(dataclasses.replace(background, rgb=rgb), background)
         assert found.all() == differs and found.any() == differs, step
+
 
 def test_with_a_background_only_what_differs_from_it_is_the_object(tex):
     tracker, errors = track_lift(tex, empty_table())
