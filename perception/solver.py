@@ -14,9 +14,9 @@ inverse in single precision: one (N, N) @ (N, 3) product on 4-byte numbers is ab
 as fast as SuperLU's triangular solves at 500 vertices (the product is bound by memory
 traffic, which the narrower numbers halve), and single precision is plenty for a
 preconditioner. Past that the inverse outgrows the processor's cache and the sparse
-factor wins: on one core, inverse against factor, 0.03 against 0.06 ms at 508 vertices, 0.14 against 0.08 at 654,
-0.64 against 0.19 at 1407 (the factor of a towel's mesh with its fill-reducing ordering
-for symmetric matrices; a development timing, median of 200 solves).
+factor wins: on one core, inverse against factor, 0.03 against 0.06 ms at 508 vertices,
+0.14 against 0.08 at 654, 0.64 against 0.19 at 1407 (the factor of a towel's mesh with its
+fill-reducing ordering for symmetric matrices; a development timing, median of 200 solves).
 
 Two methods share the factorisation:
 

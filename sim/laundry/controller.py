@@ -188,10 +188,11 @@ def why_not_a_corner(corner: AdjacentCorner, angles_deg: dict, window_m: float) 
     """Why the outline corner ``corner`` is no corner of the cloth, one line; "" when it may
     be one. It is not when its interior angle (``angles_deg``, ``corner_angles_deg``) is
     blunter than ``BLUNT_CORNER_MIN_ANGLE_DEG`` and the edge from the held point to it is at
-    least twice ``window_m`` long (the chords' half-length, ``corner_angles_deg``): then the chords that measured the
-    angle lie on that edge and the angle is its own. On a shorter edge they reach past the
-    corner at its other end and read a square corner blunt (a T-shirt's cuff, 8-11 cm: its
-    corners measure 88-130 degrees on the 1.5 cm meshes of the unfold trials)."""
+    least twice ``window_m`` long (the chords' half-length, ``corner_angles_deg``): then the
+    chords that measured the angle lie on that edge and the angle is its own. On a shorter
+    edge they reach past the corner at its other end and read a square corner blunt (a
+    T-shirt's cuff, 8-11 cm: its corners measure 88-130 degrees on the 1.5 cm meshes of the
+    unfold trials)."""
     angle = angles_deg.get(int(corner.plan.vertex_id))
     if angle is None or angle <= BLUNT_CORNER_MIN_ANGLE_DEG or corner.material_distance_m < 2.0 * window_m:
         return ""
@@ -215,9 +216,8 @@ def stretchable_corner(candidates, canonical: np.ndarray, held_vertex: int,
     straight edge (``MIN_EDGE_STRAIGHTNESS``), which pulling the two corners apart stretches
     (a T-shirt's hem, not the side seam that bends under the sleeve), among those, given the
     canonical outline's corner angles (``angles_deg``, ``corner_angles_deg``), one that may be a
-    corner of the cloth (``why_not_a_corner``, with the chords' ``window_m``), among
-    those a sharp one
-    (``SURE_CORNER_MAX_ANGLE_DEG``: a cuff's other corner, not the blunt corner where a
+    corner of the cloth (``why_not_a_corner``, with the chords' ``window_m``), among those a
+    sharp one (``SURE_CORNER_MAX_ANGLE_DEG``: a cuff's other corner, not the blunt corner where a
     shirt's shoulder meets its neckline, which no edge of the shirt ends at), among those one
     the camera saw enough of (``seen_enough``) and, given where the held point is
     (``held_point_cam`` (3,), metres, the plans' camera frame), among those one the frame
