@@ -42,6 +42,14 @@ that is right scores about 1 on it:
   taken as hidden. A right mesh lies there only along the outline's blur; a mesh whose
   material slid along a hanging cloth sticks out beside it. Up to ``EXPOSED_ALL`` of the
   vertices in view so exposed cost nothing; at ``EXPOSED_NONE`` the cue is 0.
+- ``within_reach``: cloth does not stretch, so no part of it hangs farther from a point a
+  gripper holds than the material farthest from that point (``reach_ratio``). Where the
+  robot says which vertex it holds and where (``RGBDFrame.held_vertices``), the object
+  measured farther from the gripper than the mesh's material reaches from the held vertex
+  has material the mesh lacks: a mesh laid on a folded cloth, whose hidden layer falls
+  open as the cloth is lifted. Up to ``REACH_ALL`` times the mesh's reach costs nothing
+  (the simulated cloth stretches a few per cent under its own weight); at ``REACH_NONE``
+  the cue is 0.
 
 One bound comes on top of the product: on a cloth without print, the frame shows where the
 surface is but not which material lies where on it. While the mesh keeps the shape it was
@@ -79,6 +87,14 @@ CARRIED_ALL, CARRIED_NONE = 0.2, 0.45
 #: share of the vertices in view seen through to the empty workspace: up to the first, the
 #: ``opaque`` cue is 1; at the second, 0
 EXPOSED_ALL, EXPOSED_NONE = 0.04, 0.12
+#: how far the object reaches from a held point, over the mesh's material reach from the
+#: held vertex (``reach_ratio``): up to the first, the ``within_reach`` cue is 1; at the
+#: second, 0. Measured in the simulation (development scripts): a flat towel and a T-shirt
+#: lifted by a corner hang 1.04 and 1.06 times their rest reach (the cloth's springs give), and
+#: a mesh laid on the whole cloth held by the vertex nearest the gripper, up to 3 cm from the
+#: corner, reads up to 1.09 (``gripper_corner_move``); a 50 x 45 cm towel folded in half
+#: reaches 1.23 or 1.31 times (by the fold's direction) as far from a corner as the half on top
+REACH_ALL, REACH_NONE = 1.1, 1.25
 #: RMS change of shape (metres, ``reshaping``) beyond which a plain cloth's material points are
 #: unconfirmed. On 13 development lifts of plain cloth (even seeds 0-58, the unfold trials'
 #: tracker), of the estimates with confidence 0.5 or more, 68 % were wrong (mean error over 30
@@ -106,12 +122,13 @@ class Assessment:
     seen: float
     followed: float
     opaque: float = 1.0
+    within_reach: float = 1.0
     material_cap: float = 1.0
 
     @property
     def confidence(self) -> float:
         product = (self.depth * self.coverage * self.precision * self.appearance * self.unstretched * self.uncrumpled
-                   * self.seen * self.followed * self.opaque)
+                   * self.seen * self.followed * self.opaque * self.within_reach)
         return float(np.clip(min(product, self.material_cap), 0.0, 1.0))
 
     def lost(self, threshold: float) -> bool:
@@ -144,6 +161,26 @@ def matches_cap(residuals_m: np.ndarray, radius_m: float) -> float:
     return UNCONFIRMED_CAP if off >= MIN_DISAGREEING and 2 * off > len(residuals_m) else 1.0
 
 
+def reach_ratio(object_points_m: np.ndarray, held_points_m: np.ndarray, held_reach_m: np.ndarray) -> float:
+    """How far the measured object reaches from the points a robot holds, relative to how far
+    the mesh's material reaches from the vertices held there: the largest, over the held
+    points (K, 3), of the 99th percentile of the object points' (P, 3) distances from it over
+    its vertex's material reach (K,) metres (the canonical mesh's largest distance from that
+    vertex; the percentile leaves out a few stray pixels). 0 without points or held points."""
+    pts = np.asarray(object_points_m, np.float64).reshape(-1, 3)
+    held = np.asarray(held_points_m, np.float64).reshape(-1, 3)
+    reach = np.asarray(held_reach_m, np.float64).reshape(-1)
+    if not len(pts) or not len(held):
+        return 0.0
+    far = np.percentile(np.linalg.norm(pts[None, :, :] - held[:, None, :], axis=2), 99, axis=1)
+    return float(np.max(far / np.maximum(reach, 1e-9)))
+
+
+def within_reach(ratio: float) -> float:
+    """The ``within_reach`` cue of a ``reach_ratio``: 1 up to ``REACH_ALL``, 0 at ``REACH_NONE``."""
+    return float(np.clip((REACH_NONE - ratio) / (REACH_NONE - REACH_ALL), 0.0, 1.0))
+
+
 def _ramp(value: float, good: float) -> float:
     """0 at 0, rising linearly to 1 at ``good`` and above."""
     return float(np.clip(value / good, 0.0, 1.0))
@@ -152,7 +189,7 @@ def _ramp(value: float, good: float) -> float:
 def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, visible: np.ndarray,
            depth_m: np.ndarray, object_mask: np.ndarray, K: np.ndarray, tol_m: float, appearance: float,
            leak: float = 0.0, carried: float = 0.0, extent: np.ndarray | None = None,
-           exposed: np.ndarray | None = None, cap: float = 1.0) -> Assessment:
+           exposed: np.ndarray | None = None, cap: float = 1.0, reach: float = 1.0) -> Assessment:
     """The Assessment of an estimate.
 
     vertices : (N, 3); visible : (N,) bool, the vertices seen
@@ -174,6 +211,7 @@ def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, 
         (``perception.background.seen_through``), or None where the workspace is not known
     cap : the highest confidence the evidence for the material points allows (``material_cap``,
         ``matches_cap``)
+    reach : the ``within_reach`` cue (``within_reach`` of ``reach_ratio``; 1 when nothing is held)
     """
     n = len(vertices)
     h, w = depth_m.shape
@@ -215,4 +253,4 @@ def assess(vertices: np.ndarray, edges: np.ndarray, rest_lengths_m: np.ndarray, 
                       uncrumpled=float(np.clip((0.15 - crushed) / 0.09, 0.0, 1.0)),
                       seen=_ramp(seen.sum() / max(n, 1), 0.25),
                       followed=float(np.clip((CARRIED_NONE - carried) / (CARRIED_NONE - CARRIED_ALL), 0.0, 1.0)),
-                      opaque=opaque, material_cap=float(cap))
+                      opaque=opaque, within_reach=float(reach), material_cap=float(cap))

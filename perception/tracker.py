@@ -48,7 +48,7 @@ from perception.appearance import AppearanceModel
 from perception.background import check_background, differs_from_background, seen_through
 from perception.coarse import MIN_RESPONSE, FrameMemory
 from perception.colour_model import ColourModel
-from perception.confidence import Assessment, assess, matches_cap, material_cap, reshaping
+from perception.confidence import Assessment, assess, matches_cap, material_cap, reach_ratio, reshaping, within_reach
 from perception.energy import (
     DEPTH_RESIDUALS,
     BoundaryTerm,
@@ -72,6 +72,7 @@ from perception.features import (
 from perception.frame_checks import check_frame
 from perception.geometry import (
     Undistorter,
+    backproject,
     face_areas,
     face_normals,
     lens_coefficients,
@@ -483,6 +484,9 @@ class MeshTracker:
         t0 = time.perf_counter()
         self.reset()
         frame = self._check_frame(frame)
+        if frame.held_vertices is not None:
+            # They name vertices of the mesh tracked before, if any: the new one has none held yet.
+            frame = replace(frame, held_vertices=None, held_points_m=None, held_quats_xyzw=None)
         problem = check_frame(frame)  # a camera or depth no sensor gives: its numbers would overflow the mesh's
         if problem is not None:
             raise TrackingError(problem[1])
@@ -1114,9 +1118,30 @@ class MeshTracker:
         reshaped = 0.0 if textured or self._laid_V is None else reshaping(self._laid_V, V)
         cap = min(material_cap(textured, reshaped), matched)
         assessment = assess(V, self._edges, self._rest_lengths, visible, frame.depth_m, object_mask,
-                            K, self.config.confidence_tol_m, likeness, leak, carried, extent, exposed, cap)
+                            K, self.config.confidence_tol_m, likeness, leak, carried, extent, exposed, cap,
+                            self._within_reach(frame, object_mask))
         self.last_assessment = assessment
         return assessment
+
+    def _within_reach(self, frame: RGBDFrame, object_mask: np.ndarray) -> float:
+        """The ``within_reach`` cue (``perception.confidence``) of the object ``object_mask``
+        (H, W) bool measured in ``frame``, from the points its grippers hold
+        (``RGBDFrame.held_vertices``, less rows whose orientation is NaN: points no gripper
+        holds); 1 when the frame says of none."""
+        held = frame.held_vertices
+        if held is None or not held.size:
+            return 1.0
+        gripped = np.ones(held.size, bool) if frame.held_quats_xyzw is None \
+            else np.isfinite(frame.held_quats_xyzw).all(axis=1)
+        if not gripped.any():
+            return 1.0
+        step = 2  # every other pixel each way: a quarter of the pixels, the same extent
+        depth = frame.depth_m[::step, ::step]
+        rows, cols = np.nonzero(object_mask[::step, ::step] & np.isfinite(depth) & (depth > 0))
+        points = backproject(np.column_stack([cols, rows]) * step, depth[rows, cols], frame.camera.K)
+        C = self.mesh.canonical
+        reach = np.array([np.linalg.norm(C - C[v], axis=1).max() for v in held[gripped]])
+        return within_reach(reach_ratio(points, frame.held_points_m[gripped], reach))
 
     def _estimate(self, frame, V, energies, iterations, assessment: Assessment | None, t0, visible) -> MeshEstimate:
         """The MeshEstimate; ``assessment`` None means the object was not seen at all (lost)."""

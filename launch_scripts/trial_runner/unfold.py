@@ -33,7 +33,8 @@ cloth in all, degrees), ``unfold``
 (the judgement), ``tracking`` (error during the lift and at the second plan, frames
 tracked, confidence, how many frames of the lift and the hang the estimate got wrong and
 reported with confidence all the same (``honesty``), and by ground truth which true corners
-adjacent to the held one the camera saw then: ``true_adjacent_seen``) and a picture strip
+adjacent to the held one the camera saw then: ``true_adjacent_seen``; how far below the
+gripper the cloth hung at rest against how far the tracked mesh reaches: ``hang``) and a picture strip
 through the lift.
 """
 
@@ -447,6 +448,7 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
         tracking()
     plan_seq = tracking.last_seq
     weight_n = float(np.linalg.norm(hand1.gripper.cloth_force_n()))  # the wrist sensor, the cloth hanging at rest
+    hang = _hang_record(scene, tracking.frames["last"], reference, hand1, planned_on.canonical, held_vertex)
 
     # second corner: looked for again, the cloth turned, while the frame confirms none
     second_plan, distance, second_vertex, details = _second_plan(scene, link, config, tracking, reference,
@@ -472,6 +474,7 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
     tracking.keep("second plan")
     tracking.plans["second plan"] = second_plan
     record["tracking"] = _tracking_record(tracking, scene, lift_seqs, plan_seq)
+    record["tracking"]["hang"] = hang
     record["tracking"]["true_adjacent_seen"] = _true_adjacent_seen(scene, tracking.frames["last"], first.grasped_uv)
     if second_plan is None:
         record["failure"] = details.get("reason", "no second grasp")
@@ -556,6 +559,21 @@ def _grasp_record(closing, scene) -> dict:
             "nearest_corner": scene.spec.corner_names[k], "corner_error_m": round(error, 4),
             "at_corner": error <= TOLERANCE_M,
             "material_extent_m": round(material_extent(scene.uv_m, closing.held_nodes), 4)}
+
+
+def _hang_record(scene, frame, reference, hand, canonical: np.ndarray, held_vertex: int) -> dict:
+    """How far below the gripper ``hand`` the cloth hangs at rest in ``frame``, as the robot
+    measures it (its lowest point seen off the table, ``seen_cloth_points``), against how far
+    the tracked mesh's material reaches from the held vertex (``canonical`` (N, 3)), and the
+    gripper's height above the table: a cloth hanging farther than its mesh reaches has
+    material the mesh lacks (a mesh laid on a folded cloth). Metres; ``below_gripper_m``
+    None when no cloth was seen."""
+    points = seen_cloth_points(frame, reference)
+    grip_z = float(hand.gripper.position[2])
+    below = None if len(points) == 0 else grip_z - float(scene.to_world(points)[:, 2].min())
+    reach = float(np.linalg.norm(canonical - canonical[int(held_vertex)], axis=1).max())
+    return {"below_gripper_m": None if below is None else round(below, 4), "mesh_reach_m": round(reach, 4),
+            "gripper_above_table_m": round(grip_z - float(scene.spec.table_top_z), 4)}
 
 
 def _true_adjacent_seen(scene, frame, first_uv) -> dict:

@@ -23,17 +23,24 @@ log = logging.getLogger(__name__)
 
 
 def mask_from_reference(frame: RGBDFrame, reference: RGBDFrame, colour_tol: float = COLOUR_TOL,
-                        depth_tol_m: float = DEPTH_TOL_M, min_area_px: int = 200) -> np.ndarray:
+                        depth_tol_m: float = DEPTH_TOL_M, min_area_px: int = 200,
+                        exclude: np.ndarray | None = None) -> np.ndarray:
     """(H, W) bool mask of the largest region that differs from the empty reference.
 
     frame, reference : RGBDFrame of the same camera, with and without the cloth
     colour_tol, depth_tol_m : what differs (``perception.background.differs_from_background``)
     min_area_px : regions smaller than this are noise; the result is empty if none is larger
+    exclude : (H, W) bool, pixels that are no cloth whatever they show (the robot's own
+        hands and arms), left out before the regions are found: a robot's arm differs
+        from the empty workspace too, and is often the larger region
     Holes inside the region (dropouts, a print in the table's colour) are filled.
     """
     if frame.rgb.shape != reference.rgb.shape:
         raise ValueError(f"mask_from_reference: frame {frame.rgb.shape} and reference {reference.rgb.shape} differ in size")
-    m = differs_from_background(frame, reference, colour_tol, depth_tol_m).astype(np.uint8)
+    differs = differs_from_background(frame, reference, colour_tol, depth_tol_m)
+    if exclude is not None:
+        differs &= ~np.asarray(exclude, dtype=bool)
+    m = differs.astype(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
     if n <= 1 or stats[1:, cv2.CC_STAT_AREA].max() < min_area_px:
         return np.zeros(m.shape, bool)
@@ -70,9 +77,10 @@ def cloth_points(frame: RGBDFrame, mask: np.ndarray, reference: RGBDFrame, depth
 def cloth_seen(frame: RGBDFrame, reference: RGBDFrame) -> np.ndarray:
     """(H, W) bool: the cloth against the empty workspace, less the robot's own hands and arms
     (the frame's known occluder, if it has one)."""
-    mask = mask_from_reference(frame, reference)
-    if frame.occluder_mask is not None:
-        mask &= ~frame.occluder_mask.astype(bool)
+    excluded = None if frame.occluder_mask is None else frame.occluder_mask.astype(bool)
+    mask = mask_from_reference(frame, reference, exclude=excluded)
+    if excluded is not None:  # the filled holes may hold some of it
+        mask &= ~excluded
     return mask
 
 

@@ -333,3 +333,48 @@ def test_without_the_grippers_orientation_the_hidden_half_turns_with_the_half_se
     for error, estimate in frames:
         if error is not None:  # a new mesh's material points cannot be compared
             assert error < 0.015 or estimate.lost, (error, estimate.confidence)
+
+
+def test_a_mesh_that_lacks_material_the_held_cloth_has_is_lost_not_confident(tex):
+    """Cloth does not stretch: none of it lies farther from a point a gripper holds than the
+    mesh's material reaches from the vertex held there. A mesh laid on the left 60 % of the
+    sheet (a fold hid the rest when it was laid) misses the material beyond it; held at the
+    left edge's middle, the sheet measured reaches 1.6 times farther than that mesh does."""
+    flat = sheet_on_table(hinged(UV, 0), tex, 0)
+    on_sheet = flat.depth_m < TABLE_M - 0.005
+    cols = np.nonzero(on_sheet.any(axis=0))[0]
+    part = on_sheet.copy()
+    part[:, cols[0] + int(0.6 * len(cols)):] = False
+    for mask, lacking in ((on_sheet, False), (part, True)):
+        tracker = MeshTracker(TrackerConfig(features="klt"))
+        e0 = tracker.initialise(flat, mask=mask, background=empty_table())
+        C = e0.canonical
+        left = C[:, 0] < C[:, 0].min() + 0.01
+        held = int(np.flatnonzero(left)[np.argmin(np.abs(C[left, 1] - np.median(C[:, 1])))])
+        frame = dataclasses.replace(sheet_on_table(hinged(UV, 0), tex, 1), held_vertices=np.array([held], np.int32),
+                                    held_points_m=e0.vertices[[held]], held_quats_xyzw=np.array([[0.0, 0.0, 0.0, 1.0]]))
+        e = tracker.track(frame)
+        cue = tracker.last_assessment.within_reach
+        if lacking:
+            assert cue < FLOOR and e.lost, (cue, e.confidence)
+        else:
+            assert cue == 1.0 and not e.lost and e.confidence > 0.8, tracker.last_assessment
+        # a point no gripper holds (the hanging cloth's lowest point, orientation NaN) is no evidence
+        unheld = dataclasses.replace(frame, seq=2, timestamp_s=2 / 30, held_quats_xyzw=np.full((1, 4), np.nan))
+        tracker.track(unheld)
+        assert tracker.last_assessment.within_reach == 1.0
+
+
+def test_the_reach_ratio_is_the_farthest_measured_over_the_mesh_reach_of_each_held_point():
+    from perception.confidence import REACH_ALL, REACH_NONE, reach_ratio, within_reach
+
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-1, 1, (2000, 3)) * [0.3, 0.3, 0.0]  # a square 60 cm wide
+    held = np.array([[-0.3, 0.0, 0.0], [0.3, 0.0, 0.0]])
+    far = np.sqrt(0.6 ** 2 + 0.3 ** 2)  # from the middle of one side to the far corners
+    ratio = reach_ratio(points, held, np.array([far, far]))
+    assert 0.93 < ratio <= 1.0
+    # one held point whose vertex reaches half as far: the largest ratio counts
+    assert reach_ratio(points, held, np.array([far, far / 2])) == pytest.approx(2 * ratio)
+    assert reach_ratio(np.zeros((0, 3)), held, np.array([1.0, 1.0])) == 0.0
+    assert within_reach(REACH_ALL) == 1.0 and within_reach(REACH_NONE) == 0.0 and 0 < within_reach(1.2) < 1

@@ -117,6 +117,23 @@ def test_mask_from_reference_finds_a_thin_pale_cloth_and_fills_its_print():
     assert (mask & ~truth).sum() <= 60 and (truth & ~mask).sum() <= 10  # at most a one-pixel rim more
 
 
+def test_the_cloth_seen_is_the_cloth_not_the_robots_larger_arm_beside_it():
+    import dataclasses
+
+    from sim.laundry.segment import cloth_seen
+
+    rng = np.random.default_rng(2)
+    frame, reference = _frames(True, rng), _frames(False, rng)
+    arm = np.zeros((60, 80), bool)
+    arm[2:14, 5:75] = True  # larger than the cloth, apart from it, and in the robot's known occluder mask
+    frame.rgb[arm] = (90, 90, 95)
+    frame = dataclasses.replace(frame, occluder_mask=arm)
+    truth = np.zeros((60, 80), bool)
+    truth[20:40, 30:60] = True
+    seen = cloth_seen(frame, reference)
+    assert not (seen & arm).any() and (truth & ~seen).sum() <= 10 and (seen & ~truth).sum() <= 60
+
+
 def test_mask_from_reference_is_empty_without_a_cloth():
     rng = np.random.default_rng(1)
     assert not mask_from_reference(_frames(False, rng), _frames(False, rng)).any()

@@ -641,3 +641,29 @@ def test_material_extent_tells_a_jaw_on_two_layers_from_one_on_a_single_layer():
     two_layers = np.concatenate([one_layer, near([0.0, 0.4])])
     assert material_extent(uv, two_layers) == pytest.approx(0.4, abs=0.06)
     assert material_extent(uv, one_layer[:1]) == 0.0
+
+
+@pytest.mark.slow
+def test_the_robot_measures_how_far_below_its_gripper_the_cloth_hangs_whatever_its_arm_covers():
+    from launch_scripts.trial_runner.unfold import _hang_record
+
+    spec = laundry_spec(2, view="room", state="flat", cloth_kind="towel")
+    config = UnfoldConfig()
+    with LaundryScene(spec, noise=False, known_occluders=True) as scene:
+        reference = scene.render_empty()
+        corner = scene.corners_world()[0]
+        down = Rotation.from_matrix(np.column_stack([[1.0, 0, 0], [0, -1.0, 0], [0, 0, -1.0]])).as_quat()
+        hand = scene.add_robot_hand(corner, down, arm_for(corner, spec.table_top_z, config))
+        hand.gripper.close_on(scene.physics.nodes_near(corner, 0.02))
+        canonical = np.column_stack([scene.uv_m, np.zeros(len(scene.uv_m))])
+        held = int(scene.corner_vertices()[0])
+        top = lift_target(corner, canonical, held, spec.table_top_z, config)
+        move_grippers(scene, [(hand.gripper, top, None)], 2.0)
+        frame = scene.render()
+        # the drawn arm differs from the empty workspace over more pixels than the cloth does
+        assert frame.occluder_mask.sum() > scene.cloth_mask().sum()
+        hang = _hang_record(scene, frame, reference, hand, canonical, held)
+        true_below = hand.gripper.position[2] - scene.cloth_vertices_world()[:, 2].min()
+        assert hang["below_gripper_m"] == pytest.approx(true_below, abs=0.03)
+        assert hang["mesh_reach_m"] == pytest.approx(np.linalg.norm(canonical - canonical[held], axis=1).max(), abs=1e-4)
+        assert hang["gripper_above_table_m"] == pytest.approx(top[2] - spec.table_top_z, abs=1e-3)
