@@ -180,6 +180,15 @@ def rectangle_mesh(width_m: float, height_m: float, spacing_m: float) -> Canonic
     return mesh_from_lattice(lat[inside], spacing_m)
 
 
+def material_reach(canonical: np.ndarray, vertices) -> np.ndarray:
+    """(K,) float64 metres: for each of ``vertices`` (K,) int, the largest distance from it to
+    any vertex of the ``canonical`` (N, 3) mesh, at rest. No part of a cloth held there hangs
+    farther from the hand, since cloth does not stretch."""
+    rest = np.asarray(canonical, dtype=np.float64)
+    ids = np.atleast_1d(np.asarray(vertices, dtype=np.int64))
+    return np.array([np.linalg.norm(rest - rest[v], axis=1).max() for v in ids])
+
+
 def second_difference_matrix(triplets: np.ndarray, n_vertices: int) -> sp.csr_matrix:
     """(E, N) sparse matrix with (1, -2, 1) at columns (i, j, k) of each triplet row."""
     t = np.asarray(triplets)

@@ -84,7 +84,7 @@ from perception.geometry import (
 from perception.held_turn import HeldTurns, Turn
 from perception.hidden_motion import carried_prior
 from perception.initial_mesh import InitialisationError, mesh_from_mask, object_area_m2, place_mesh, spacing_for
-from perception.mesh import CanonicalMesh, barycentric_matrix
+from perception.mesh import CanonicalMesh, barycentric_matrix, material_reach
 from perception.observation import Observation, grey_of, observe
 from perception.occluders import MEASURED_SURROUNDINGS, measured_around, occluders_in_front
 from perception.raster import faces_mask
@@ -1139,8 +1139,7 @@ class MeshTracker:
         depth = frame.depth_m[::step, ::step]
         rows, cols = np.nonzero(object_mask[::step, ::step] & np.isfinite(depth) & (depth > 0))
         points = backproject(np.column_stack([cols, rows]) * step, depth[rows, cols], frame.camera.K)
-        C = self.mesh.canonical
-        reach = np.array([np.linalg.norm(C - C[v], axis=1).max() for v in held[gripped]])
+        reach = material_reach(self.mesh.canonical, held[gripped])
         return within_reach(reach_ratio(points, frame.held_points_m[gripped], reach))
 
     def _estimate(self, frame, V, energies, iterations, assessment: Assessment | None, t0, visible) -> MeshEstimate:

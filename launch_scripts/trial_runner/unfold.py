@@ -59,6 +59,7 @@ from ipc.messages import (
 )
 from perception.geometry import invert_transform, rigid_transform, transform_points
 from perception.hanging import HangingCue
+from perception.mesh import material_reach
 from sim.evaluation.handled import CONFIDENT, WRONG_MM, unflagged_late
 from sim.grasp_execution import close_fingers, fingertip_target, move_grippers, plan_to_world, pull_apart
 from sim.ground_truth import error_summary, vertex_errors
@@ -571,7 +572,7 @@ def _hang_record(scene, frame, reference, hand, canonical: np.ndarray, held_vert
     points = seen_cloth_points(frame, reference)
     grip_z = float(hand.gripper.position[2])
     below = None if len(points) == 0 else grip_z - float(scene.to_world(points)[:, 2].min())
-    reach = float(np.linalg.norm(canonical - canonical[int(held_vertex)], axis=1).max())
+    reach = float(material_reach(canonical, held_vertex)[0])
     return {"below_gripper_m": None if below is None else round(below, 4), "mesh_reach_m": round(reach, 4),
             "gripper_above_table_m": round(grip_z - float(scene.spec.table_top_z), 4)}
 

@@ -30,6 +30,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from perception.geometry import check_points, check_positive, check_transform, check_vector
+from perception.mesh import material_reach
 from sim.laundry.spec import TABLE_HALF_XY_M
 
 log = logging.getLogger(__name__)
@@ -166,7 +167,7 @@ def lift_target(grasped_world: np.ndarray, canonical: np.ndarray, held_vertex: i
     """
     p = check_vector("grasped_world", grasped_world)
     rest = check_points("canonical", canonical)
-    reach = float(np.linalg.norm(rest - rest[int(held_vertex)], axis=1).max())
+    reach = float(material_reach(rest, held_vertex)[0])
     return np.array([p[0] if over_x_m is None else float(over_x_m), p[1],
                      float(table_top_m) + reach + config.hang_clearance_m])
 
