@@ -126,7 +126,9 @@ class SemiImplicitSolver:
         The last test saves the energy evaluations of steps that noisy data rarely reward:
         once the data terms' nearest-pixel look-ups dominate, a step predicted to gain a
         few percent usually gains nothing."""
-        V = np.array(V0, dtype=np.float64)
+        # Not copied: the data terms keep their look-ups for the last V they saw (by identity),
+        # and the next stage of a frame starts where this one ended. V is never changed in place.
+        V = np.asarray(V0, dtype=np.float64)
         total, grad, parts = self._total(V, terms)
         history = [total]
         converged = False
@@ -172,7 +174,7 @@ class SemiImplicitSolver:
         P = Z.copy()
         rz = float(np.sum(R * Z))
         r0 = np.sqrt(float(np.sum(R * R)))
-        for _ in range(self.cg_iterations):
+        for k in range(self.cg_iterations):
             AP = apply(P)
             pap = float(np.sum(P * AP))
             if pap <= 0:
@@ -180,8 +182,8 @@ class SemiImplicitSolver:
             a = rz / pap
             D += a * P
             R -= a * AP
-            if np.sqrt(float(np.sum(R * R))) < rtol * r0:
-                break
+            if k == self.cg_iterations - 1 or np.sqrt(float(np.sum(R * R))) < rtol * r0:
+                break  # the last direction is spent: preconditioning the residual again would be wasted
             Z = self._precondition(R)
             rz_new = float(np.sum(R * Z))
             P = Z + (rz_new / rz) * P
