@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from perception.geometry import project
+from perception.raster import shrink
 
 MIN_BLUR_PX = 1.5
 #: grey-level spread (standard deviation) above which a surface counts as textured
@@ -68,14 +69,11 @@ def _colour_at(rgb: np.ndarray, uv: np.ndarray, blur_px: float) -> np.ndarray:
     y0, y1 = max(0, int(v.min()) - pad), min(h, int(v.max()) + pad + 1)
     # A wide blur keeps nothing finer than itself: shrink the crop first (far cheaper), then
     # blur what remains of it.
-    shrink = max(1, int(blur_px / MIN_BLUR_PX))
-    crop = rgb[y0:y1, x0:x1]
-    if shrink > 1:
-        crop = cv2.resize(crop, None, fx=1.0 / shrink, fy=1.0 / shrink, interpolation=cv2.INTER_AREA)
-    crop = cv2.GaussianBlur(crop.astype(np.float32), (0, 0), blur_px / shrink)
-    # pixel centres: x in the crop maps to (x + 0.5) / shrink - 0.5 in the shrunk one
-    mx = ((u - x0 + 0.5) / shrink - 0.5).astype(np.float32).reshape(-1, 1)
-    my = ((v - y0 + 0.5) / shrink - 0.5).astype(np.float32).reshape(-1, 1)
+    factor = max(1, int(blur_px / MIN_BLUR_PX))
+    crop = cv2.GaussianBlur(shrink(rgb[y0:y1, x0:x1], factor).astype(np.float32), (0, 0), blur_px / factor)
+    # pixel centres: x in the crop maps to (x + 0.5) / factor - 0.5 in the shrunk one
+    mx = ((u - x0 + 0.5) / factor - 0.5).astype(np.float32).reshape(-1, 1)
+    my = ((v - y0 + 0.5) / factor - 0.5).astype(np.float32).reshape(-1, 1)
     out[inside] = cv2.remap(crop, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE).reshape(-1, 3)
     return out
 

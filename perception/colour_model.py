@@ -19,7 +19,7 @@ import cv2
 import numpy as np
 from scipy.ndimage import gaussian_filter
 
-from perception.raster import disc
+from perception.raster import disc, shrink
 
 #: bins of L, a and b: brightness more coarsely (shading changes it) than chroma (cloth and
 #: table are often both near grey, a few units of a and b apart)
@@ -73,7 +73,7 @@ class ColourModel:
         half resolution: a quarter of the colour conversions, and the smoothing blurs
         finer detail away anyway."""
         h, w = rgb.shape[:2]
-        half = cv2.resize(rgb, ((w + 1) // 2, (h + 1) // 2), interpolation=cv2.INTER_AREA)
+        half = shrink(rgb, 2)
         p = cv2.blur(self._table[_bin_index(half)], (3, 3))
         return cv2.resize(p, (w, h), interpolation=cv2.INTER_LINEAR)
 

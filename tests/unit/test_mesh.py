@@ -10,7 +10,7 @@ from perception.mesh import (
     mesh_from_lattice,
     rectangle_mesh,
 )
-from perception.raster import locate_pixels
+from perception.raster import locate_pixels, shrink
 
 
 def test_rectangle_mesh_is_equilateral_and_inside():
@@ -126,3 +126,19 @@ def test_every_triangle_between_kept_vertices_is_built():
     a, b, c = (xy[m.faces[:, i]] for i in range(3))
     cross = (b - a)[:, 0] * (c - a)[:, 1] - (b - a)[:, 1] * (c - a)[:, 0]
     assert np.all(cross > 0)  # all counter-clockwise in the material frame
+
+
+def test_shrink_averages_whole_blocks_and_repeats_the_far_edge():
+    rng = np.random.default_rng(3)
+    img = rng.integers(0, 256, (7, 9, 3)).astype(np.float32)
+    out = shrink(img, 2)
+    assert out.shape == (4, 5, 3)
+    # an inner block is the mean of its four pixels
+    assert np.allclose(out[1, 2], img[2:4, 4:6].reshape(-1, 3).mean(axis=0))
+    # the last column's blocks hold the image's last column twice, the corner block its last pixel four times
+    assert np.allclose(out[0, 4], img[0:2, 8].mean(axis=0))
+    assert np.allclose(out[3, 4], img[6, 8])
+    grey = rng.integers(0, 256, (6, 6)).astype(np.uint8)
+    assert shrink(grey, 3).shape == (2, 2) and shrink(grey, 1) is grey
+    with pytest.raises(ValueError, match="factor"):
+        shrink(grey, 0)
