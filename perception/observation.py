@@ -16,7 +16,7 @@ import numpy as np
 from ipc.messages import RGBDFrame
 from perception.geometry import backproject, pixel_index, ray_lengths, rays
 from perception.raster import bounding_box
-from perception.segmentation import SHADOW_PX, split_contour, valid_depth
+from perception.segmentation import SHADOW_PX, contour_parts, valid_depth
 
 
 @dataclass
@@ -90,7 +90,7 @@ def observe(frame: RGBDFrame, mask: np.ndarray, window_px: int = 5, occlusion_ma
     grey = grey_of(frame) if grey is None else grey
     depth = smooth_depth_in_mask(frame.depth_m, mask, window_px)
     h, w = depth.shape
-    rng = depth * ray_lengths(K, w, h)
+    rng = np.zeros_like(depth)
     # the contour lies in the mask's box; the pixels that decide whether it is hidden lie
     # within SHADOW_PX of it, plus one for the neighbours. With that padding the crop's
     # border meets the mask only where the image's border does.
@@ -100,13 +100,14 @@ def observe(frame: RGBDFrame, mask: np.ndarray, window_px: int = 5, occlusion_ma
         return Observation(grey=grey, mask=mask.astype(bool), depth_m=depth, range_m=rng, outline_cam=empty,
                            hidden_contour_cam=empty, K=K)
     y0, y1, x0, x1 = box
+    rng[y0:y1, x0:x1] = depth[y0:y1, x0:x1] * ray_lengths(K, w, h)[y0:y1, x0:x1]  # depth is 0 off the mask
     occluder = None if frame.occluder_mask is None else frame.occluder_mask[y0:y1, x0:x1]
     if unsearched is not None:
         cut = unsearched[y0:y1, x0:x1]
         occluder = cut if occluder is None else occluder | cut
     lifted = []
-    for part in split_contour(mask[y0:y1, x0:x1], frame.depth_m[y0:y1, x0:x1], occlusion_margin_m, occluder):
-        oy, ox = np.nonzero(part)
+    for part in contour_parts(mask[y0:y1, x0:x1], frame.depth_m[y0:y1, x0:x1], occlusion_margin_m, occluder):
+        oy, ox = np.divmod(part, x1 - x0)
         oy, ox = oy + y0, ox + x0
         od = depth[oy, ox]
         ok = od > 0

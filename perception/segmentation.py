@@ -504,7 +504,20 @@ SHADOW_PX = 16
 
 def split_contour(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: float = 0.03,
                   occluder_mask: np.ndarray | None = None, shadow_px: int = SHADOW_PX):
-    """The object's contour in two parts: (outline, hidden), (H, W) bool each.
+    """The object's contour in two parts: (outline, hidden), (H, W) bool each; the
+    pixels of ``contour_parts``."""
+    h, w = mask.shape
+    own, hidden = np.zeros(h * w, bool), np.zeros(h * w, bool)
+    own_at, hidden_at = contour_parts(mask, depth_m, occlusion_margin_m, occluder_mask, shadow_px)
+    own[own_at] = True
+    hidden[hidden_at] = True
+    return own.reshape(h, w), hidden.reshape(h, w)
+
+
+def contour_parts(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: float = 0.03,
+                  occluder_mask: np.ndarray | None = None, shadow_px: int = SHADOW_PX):
+    """The object's contour in two parts: (outline, hidden), each the sorted flat indices
+    (into the (H, W) image, row by row) of its pixels.
 
     The contour is the pixels of ``mask`` with a 4-neighbour outside it. ``outline`` is
     where the object ends; ``hidden`` is the rest, which says nothing about where it ends:
@@ -561,11 +574,9 @@ def split_contour(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: flo
         cut = off | occluder[at] | (seen & (d < near[go, None]))
         first = np.argmax(cut | seen | inside[at], axis=1)
         is_hidden[go] = cut[np.arange(len(go)), first]
-    own = np.zeros_like(m)
-    hidden = np.zeros_like(m)
-    hidden[rows[is_hidden], cols[is_hidden]] = True
-    own[rows[~is_hidden], cols[~is_hidden]] = True
-    return own, hidden & ~own
+    at = rows * w + cols
+    own = np.unique(at[~is_hidden])
+    return own, np.setdiff1d(at[is_hidden], own)
 
 
 def _ray(rows: np.ndarray, cols: np.ndarray, dr, dc, k, h: int, w: int):
