@@ -77,8 +77,25 @@ def _pixel_triangles(uv: np.ndarray, faces: np.ndarray, shape) -> tuple[np.ndarr
     return tri, np.flatnonzero(ok)
 
 
-def faces_mask(uv: np.ndarray, faces: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) bool: pixels covered by the projected triangles."""
+def faces_mask(uv: np.ndarray, faces: np.ndarray, shape: tuple[int, int], outline: list | None = None) -> np.ndarray:
+    """(H, W) bool: pixels covered by the projected triangles.
+
+    outline : ``perception.geometry.boundary_chains(faces)``, or None (or empty). With it, a
+    mesh whose projected faces all turn the same side to the camera (nothing folded over in
+    the image) and all project is drawn by its outline's loops in one call: the same pixels
+    (the loops' edges are the triangles' outer edges, and even-odd filling leaves the holes
+    out) at a fraction of the cost of drawing hundreds of triangles."""
+    if outline:
+        corners = uv[faces]
+        if np.all(np.isfinite(corners)):
+            e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
+            area = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+            if np.all(area > 0) or np.all(area < 0):
+                lim = 10 * max(shape)
+                mask = np.zeros(shape, np.uint8)
+                pts = np.clip(np.rint(uv), -lim, lim).astype(np.int32)
+                cv2.fillPoly(mask, [pts[chain] for chain in outline], 1)
+                return mask.view(bool)
     tri, _ = _pixel_triangles(uv, faces, shape)
     mask = np.zeros(shape, np.uint8)
     # fillPoly fills by the even-odd rule, so overlapping triangles would cancel; the two

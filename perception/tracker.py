@@ -73,6 +73,7 @@ from perception.frame_checks import check_frame
 from perception.geometry import (
     Undistorter,
     backproject,
+    boundary_chains,
     face_areas,
     face_normals,
     lens_coefficients,
@@ -380,6 +381,7 @@ class MeshTracker:
         self._g0 = None
         self._faces_out = None
         self._edges = None
+        self._outline = []  # the mesh's outline loops, to draw its prediction (``faces_mask``)
         self._visible = None  # (N,) bool, the vertices seen in the last frame
         self._laid_V = None
         self._unknown_occluder = None  # (H, W) bool, the objects in front found in the last frame
@@ -531,6 +533,7 @@ class MeshTracker:
         self._camera = frame.camera
         self._solver = self._make_solver(mesh)
         self._edges = mesh.edges()
+        self._outline = boundary_chains(mesh.faces)
         self._faces_out = self._orient_faces(mesh.faces, V0)
 
         boundary = self._boundary_term(obs, np.zeros(len(mesh.boundary)))
@@ -688,7 +691,7 @@ class MeshTracker:
         self._memory.push(small)
         h, w = frame.depth_m.shape
         uv = project(V_pred, K)
-        pred_mask = faces_mask(uv, faces, (h, w))
+        pred_mask = faces_mask(uv, faces, (h, w), self._outline)
         prepared = None
         if cfg.use_correspondence and self._corr is not None:
             # Optical flow or feature detection needs no object mask: it runs on a second
@@ -742,7 +745,7 @@ class MeshTracker:
         h, w = frame.depth_m.shape
         z = V0[:, 2]
         differs = self._differs(frame)
-        segment = segment_tracked(frame.depth_m, faces_mask(project(V0, K), faces, (h, w)),
+        segment = segment_tracked(frame.depth_m, faces_mask(project(V0, K), faces, (h, w), self._outline),
                                   (float(z.min()), float(z.max())), cfg.segmentation, rgb=frame.rgb, colour=self._colour,
                                   not_object=self._not_object(frame, differs), differs=differs)
         mask = segment.mask

@@ -15,7 +15,7 @@ it imports nothing from ``perception`` outside this package, nor ``sim``, ``gras
 - checks: ``check_points``, ``check_ids``, ``check_vector``, ``check_positive``,
   ``check_transform``
 - topology: ``directed_edges``, ``unique_edges``, ``edge_length_graph``, ``boundary_half_edges``,
-  ``boundary_edges``, ``boundary_vertices``, ``face_normals``, ``face_areas``,
+  ``boundary_chains``, ``boundary_edges``, ``boundary_vertices``, ``face_normals``, ``face_areas``,
   ``vertex_normals``
 """
 
@@ -38,6 +38,7 @@ from perception.geometry._checks import (
     check_vector,
 )
 from perception.geometry._topology import (
+    boundary_chains,
     boundary_edges,
     boundary_half_edges,
     boundary_vertices,
@@ -62,6 +63,7 @@ from perception.geometry._transforms import (
 __all__ = [
     "Undistorter",
     "backproject",
+    "boundary_chains",
     "boundary_edges",
     "boundary_half_edges",
     "boundary_vertices",

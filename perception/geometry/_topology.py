@@ -46,6 +46,30 @@ def boundary_half_edges(faces: np.ndarray) -> np.ndarray:
     return directed[counts[inverse] == 1]
 
 
+def boundary_chains(faces: np.ndarray) -> list[np.ndarray]:
+    """The outline's loops: the boundary half-edges (``boundary_half_edges``) chained into
+    closed loops, a list of int64 arrays of vertex ids (the outer loop and one per hole, in
+    the faces' winding). Empty when the outline touches itself at a vertex (two triangles
+    meeting only at a corner, which a grid laid over a concave outline can produce) or does
+    not close (a mesh that is not a manifold there): then there is no one way to chain it."""
+    half = boundary_half_edges(faces)
+    if not len(half) or len(np.unique(half[:, 0])) < len(half):
+        return []
+    following = dict(zip(half[:, 0].tolist(), half[:, 1].tolist()))
+    if set(following.values()) != set(following):
+        return []
+    chains, left = [], set(following)
+    while left:
+        start = left.pop()
+        chain, v = [start], following[start]
+        while v != start:
+            left.discard(v)
+            chain.append(v)
+            v = following[v]
+        chains.append(np.asarray(chain, np.int64))
+    return chains
+
+
 def boundary_edges(faces: np.ndarray) -> np.ndarray:
     """(B, 2) int64 undirected edges used by exactly one face (the outline), smaller id first,
     sorted. A mesh whose outline touches itself at a vertex has no single loop of them."""

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from perception.geometry import (
+    boundary_chains,
     boundary_edges,
     boundary_half_edges,
     boundary_vertices,
@@ -32,6 +33,38 @@ def test_boundary_half_edges_keep_the_winding():
     # the shared edge 1-2 is used twice and left out; the outline runs counter-clockwise
     assert half.tolist() == [[0, 1], [1, 3], [2, 0], [3, 2]]
     assert boundary_half_edges(np.zeros((0, 3), np.int64)).shape == (0, 2)
+
+
+def _grid_faces(n: int, skip=()) -> np.ndarray:
+    """Counter-clockwise faces of an n x n grid of squares (vertex id row * (n + 1) + col),
+    two triangles a square, leaving out the squares in ``skip`` (row, col)."""
+    faces = []
+    for r in range(n):
+        for c in range(n):
+            if (r, c) in skip:
+                continue
+            a, b, d, e = r * (n + 1) + c, r * (n + 1) + c + 1, (r + 1) * (n + 1) + c, (r + 1) * (n + 1) + c + 1
+            faces += [[a, b, d], [d, b, e]]
+    return np.array(faces)
+
+
+def test_boundary_chains_close_the_outline_and_each_hole():
+    (loop,) = boundary_chains(FACES)
+    start = int(np.flatnonzero(loop == 0)[0])
+    assert np.roll(loop, -start).tolist() == [0, 1, 3, 2]  # the faces' winding
+    chains = boundary_chains(_grid_faces(3, skip={(1, 1)}))  # a 3 x 3 grid with its middle square out
+    assert sorted(len(c) for c in chains) == [4, 12]
+    hole = next(c for c in chains if len(c) == 4)
+    assert sorted(hole.tolist()) == [5, 6, 9, 10]
+    # every outline edge in exactly one chain
+    chained = sorted((int(a), int(b)) for c in chains for a, b in zip(c, np.roll(c, -1)))
+    assert chained == sorted(map(tuple, boundary_half_edges(_grid_faces(3, skip={(1, 1)})).tolist()))
+
+
+def test_an_outline_touching_itself_has_no_chains():
+    # two squares of a 2 x 2 grid meeting only at the middle vertex
+    assert boundary_chains(_grid_faces(2, skip={(0, 1), (1, 0)})) == []
+    assert boundary_chains(np.zeros((0, 3), np.int64)) == []
 
 
 def test_an_interior_vertex_is_not_on_the_boundary():

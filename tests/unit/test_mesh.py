@@ -10,7 +10,8 @@ from perception.mesh import (
     mesh_from_lattice,
     rectangle_mesh,
 )
-from perception.raster import locate_pixels, shrink
+from perception.geometry import boundary_chains
+from perception.raster import faces_mask, locate_pixels, shrink
 
 
 def test_rectangle_mesh_is_equilateral_and_inside():
@@ -142,3 +143,24 @@ def test_shrink_averages_whole_blocks_and_repeats_the_far_edge():
     assert shrink(grey, 3).shape == (2, 2) and shrink(grey, 1) is grey
     with pytest.raises(ValueError, match="factor"):
         shrink(grey, 0)
+
+
+def test_a_mesh_drawn_by_its_outline_covers_the_pixels_its_triangles_do():
+    mesh = rectangle_mesh(0.3, 0.2, 0.02)
+    keep = np.linalg.norm(mesh.material_xy - [0.15, 0.1], axis=1) > 0.05  # a hole in the middle
+    faces = mesh.faces[np.all(keep[mesh.faces], axis=1)]
+    outline = boundary_chains(faces)
+    assert len(outline) == 2
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        angle = rng.uniform(0, np.pi)
+        R = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
+        uv = (mesh.material_xy - [0.15, 0.1]) @ R.T * rng.uniform(600, 1100) + [320, 240] + rng.uniform(-40, 40, 2)
+        drawn = faces_mask(uv, faces, (480, 640), outline)
+        assert np.array_equal(drawn, faces_mask(uv, faces, (480, 640)))
+        assert not drawn[tuple(np.rint(uv[~keep].mean(axis=0)[::-1]).astype(int))]  # the hole stays open
+    # a fold: part of the mesh turned over onto the rest; drawn by its triangles, not cut out by even-odd
+    folded = mesh.material_xy.copy()
+    folded[folded[:, 0] > 0.2, 0] = 0.4 - folded[folded[:, 0] > 0.2, 0]
+    uv = folded * 1000 + 100
+    assert np.array_equal(faces_mask(uv, faces, (480, 640), outline), faces_mask(uv, faces, (480, 640)))
