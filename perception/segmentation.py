@@ -118,9 +118,10 @@ def _steps(depth_m: np.ndarray, cfg: SegmentationConfig, into_missing: bool) -> 
     return edge
 
 
-def _regions(candidate: np.ndarray, depth_m: np.ndarray, cfg: SegmentationConfig):
-    """Connected regions of continuous depth inside ``candidate`` (H, W) bool."""
-    fg = candidate & ~depth_edges(depth_m, cfg)
+def _regions(candidate: np.ndarray, depth_m: np.ndarray, cfg: SegmentationConfig, edges: np.ndarray | None = None):
+    """Connected regions of continuous depth inside ``candidate`` (H, W) bool; ``edges`` is
+    ``depth_edges(depth_m, cfg)`` when the caller has it already."""
+    fg = candidate & ~(depth_edges(depth_m, cfg) if edges is None else edges)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(fg.astype(np.uint8), connectivity=4)
     return n, labels, stats
 
@@ -183,7 +184,8 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
     unsearched[y0:y1, x0:x1] = ~search
     d = np.where(valid, depth, 0.0)
     candidate = valid & search & (d > z_range[0] - cfg.depth_band_m) & (d < z_range[1] + cfg.depth_band_m)
-    regions = _regions(candidate, depth, cfg)
+    edges = depth_edges(depth, cfg)
+    regions = _regions(candidate, depth, cfg, edges)
     region, leak = _object_regions(regions, candidate, pred, dist, hidden_mask, y0, x0, cfg)
     by_colour = colour is not None and rgb is not None and colour.informative
     p = None
@@ -192,7 +194,7 @@ def segment_tracked(depth_m: np.ndarray, predicted_mask: np.ndarray, z_range: tu
         # (a table). Colour may tell them apart.
         p = colour.probability(rgb[y0:y1, x0:x1])
         candidate &= (p >= 0.5) | (pred & ~_uncovered(pred, p))
-        regions = _regions(candidate, depth, cfg)
+        regions = _regions(candidate, depth, cfg, edges)
         region, leak = _object_regions(regions, candidate, pred, dist, hidden_mask, y0, x0, cfg)
     if by_colour and differs is None and np.count_nonzero(pred & ~region) >= cfg.min_region_px:
         # A real part of the prediction went unfound: perhaps a part depth could not place.
