@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from perception.geometry import unique_edges
+from perception.geometry import boundary_chains, unique_edges
 from perception.mesh import (
     barycentric_2d,
     barycentric_matrix,
@@ -10,7 +10,6 @@ from perception.mesh import (
     mesh_from_lattice,
     rectangle_mesh,
 )
-from perception.geometry import boundary_chains
 from perception.raster import faces_mask, locate_pixels, shrink
 
 
