@@ -32,6 +32,7 @@ import cv2
 import numpy as np
 
 from perception.geometry import pixel_index
+from perception.raster import shrink
 
 #: Below this correlation response the phase-correlation peak is no better than noise.
 MIN_RESPONSE = 0.08
@@ -56,9 +57,7 @@ class FrameMemory:
     def small(self, grey: np.ndarray) -> np.ndarray:
         """(h, w) float32: ``grey`` downsampled and lightly blurred (so that a pixel or two of
         misalignment does not change what a comparison sees)."""
-        s = self.scale
-        img = grey if s == 1 else cv2.resize(grey, None, fx=1.0 / s, fy=1.0 / s, interpolation=cv2.INTER_AREA)
-        return cv2.GaussianBlur(img.astype(np.float32), (0, 0), BLUR_SIGMA)
+        return cv2.GaussianBlur(shrink(grey, self.scale).astype(np.float32), (0, 0), BLUR_SIGMA)
 
     @property
     def blur_reach_px(self) -> int:

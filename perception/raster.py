@@ -68,13 +68,17 @@ def reached_from(seed: np.ndarray, passable: np.ndarray, connectivity: int = 8) 
     return reached[labels]
 
 
+def _pixel_points(uv: np.ndarray, shape) -> np.ndarray:
+    """``uv`` (..., 2) finite pixel coordinates rounded to int32 for OpenCV's drawing, clipped
+    to ten image sizes: far-off corners would overflow its fixed-point maths."""
+    lim = 10 * max(shape)
+    return np.clip(np.rint(uv), -lim, lim).astype(np.int32)
+
+
 def _pixel_triangles(uv: np.ndarray, faces: np.ndarray, shape) -> tuple[np.ndarray, np.ndarray]:
     """Integer triangles (K, 3, 2) of the faces whose corners are all finite, and their ids (K,)."""
-    h, w = shape
     ok = np.all(np.isfinite(uv[faces]).reshape(len(faces), -1), axis=1)
-    lim = 10 * max(h, w)  # keep far-off corners from overflowing OpenCV's fixed-point maths
-    tri = np.clip(np.rint(uv[faces[ok]]), -lim, lim).astype(np.int32)
-    return tri, np.flatnonzero(ok)
+    return _pixel_points(uv[faces[ok]], shape), np.flatnonzero(ok)
 
 
 def faces_mask(uv: np.ndarray, faces: np.ndarray, shape: tuple[int, int], outline: list | None = None) -> np.ndarray:
@@ -91,9 +95,8 @@ def faces_mask(uv: np.ndarray, faces: np.ndarray, shape: tuple[int, int], outlin
             e1, e2 = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]
             area = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
             if np.all(area > 0) or np.all(area < 0):
-                lim = 10 * max(shape)
                 mask = np.zeros(shape, np.uint8)
-                pts = np.clip(np.rint(uv), -lim, lim).astype(np.int32)
+                pts = _pixel_points(uv, shape)
                 cv2.fillPoly(mask, [pts[chain] for chain in outline], 1)
                 return mask.view(bool)
     tri, _ = _pixel_triangles(uv, faces, shape)

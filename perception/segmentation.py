@@ -504,18 +504,6 @@ def find_object(depth_m: np.ndarray, K: np.ndarray, cfg: SegmentationConfig = Se
 SHADOW_PX = 16
 
 
-def split_contour(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: float = 0.03,
-                  occluder_mask: np.ndarray | None = None, shadow_px: int = SHADOW_PX):
-    """The object's contour in two parts: (outline, hidden), (H, W) bool each; the
-    pixels of ``contour_parts``."""
-    h, w = mask.shape
-    own, hidden = np.zeros(h * w, bool), np.zeros(h * w, bool)
-    own_at, hidden_at = contour_parts(mask, depth_m, occlusion_margin_m, occluder_mask, shadow_px)
-    own[own_at] = True
-    hidden[hidden_at] = True
-    return own.reshape(h, w), hidden.reshape(h, w)
-
-
 def contour_parts(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: float = 0.03,
                   occluder_mask: np.ndarray | None = None, shadow_px: int = SHADOW_PX):
     """The object's contour in two parts: (outline, hidden), each the sorted flat indices

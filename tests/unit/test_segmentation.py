@@ -8,16 +8,18 @@ from ipc.messages import CameraInfo
 from perception.colour_model import ColourModel
 from perception.geometry import rays
 from perception.raster import reached_from
-from perception.segmentation import SegmentationConfig, find_object, object_extent, segment_tracked, split_contour
+from perception.segmentation import SegmentationConfig, contour_parts, find_object, object_extent, segment_tracked
 
 CAM = CameraInfo.from_fov(320, 240, np.deg2rad(50))
 K = CAM.K
 H, W = 240, 320
 
 
-def outline(*args, **kwargs):
-    """The contour's outline part (``split_contour``), where the object ends."""
-    return split_contour(*args, **kwargs)[0]
+def outline(mask, *args, **kwargs):
+    """(H, W) bool: the contour's outline part (``contour_parts``), where the object ends."""
+    image = np.zeros(mask.size, bool)
+    image[contour_parts(mask, *args, **kwargs)[0]] = True
+    return image.reshape(mask.shape)
 
 
 def scene_depth(floor=True, wall=True, cloth=True, hand=False):
