@@ -336,6 +336,11 @@ class OutsideTerm:
         depth, or where depth is missing for want of any surface), or None for all
     depth_m : (H, W) float metres, the frame's depth (0 or NaN: missing); needed with ``free_space_m``
     free_space_m : float > 0 or None: pull only the vertices seen past by more than this
+    hidden_points : (Q, 3) float64 metres, the rest of the object's contour, where the image's
+        border cuts it or something nearer hides it (``Observation.hidden_contour_cam``). A
+        vertex nearer to it than to the outline is not pulled: it may lie behind what hides
+        the object there (a gripper holding the cloth's corner), and the outline's nearest
+        point is elsewhere along the object's edge, not where the vertex belongs.
     """
 
     outline_points: np.ndarray
@@ -345,6 +350,7 @@ class OutsideTerm:
     measured: np.ndarray | None = None
     depth_m: np.ndarray | None = None
     free_space_m: float | None = None
+    hidden_points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     name: str = "outside"
 
     def __post_init__(self):
@@ -372,10 +378,13 @@ class OutsideTerm:
                     d = np.asarray(self.depth_m)[rows, cols]
                     outside &= (d > 0) & (d > V[:, 2] + self.free_space_m)
             if outside.any():
-                if self._tree is None:
-                    self._tree = cKDTree(self.outline_points)
+                if self._tree is None:  # one tree over both parts of the contour, as the boundary term's
+                    self._points = np.vstack([self.outline_points, self.hidden_points])
+                    self._tree = cKDTree(self._points)
                 _, idx = self._tree.query(V[outside])
-                out[outside] = V[outside] - self.outline_points[idx]
+                own = idx < len(self.outline_points)
+                ids = np.flatnonzero(outside)[own]
+                out[ids] = V[ids] - self._points[idx[own]]
         return out
 
     def evaluate(self, V: np.ndarray):

@@ -641,11 +641,12 @@ class MeshTracker:
         if observed is not None and len(obs.outline_cam):
             if cfg.lambda_o > 0:
                 terms.append((cfg.lambda_o, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed,
-                                                        None if frame is None else self._open(frame))))
+                                                        None if frame is None else self._open(frame),
+                                                        hidden_points=obs.hidden_contour_cam)))
             elif cfg.lambda_f > 0 and frame is not None:  # the outside term's pull covers these vertices too
                 terms.append((cfg.lambda_f, OutsideTerm(obs.outline_cam, obs.mask, obs.K, observed,
                                                         depth_m=frame.depth_m, free_space_m=cfg.depth_outlier_m,
-                                                        name="free_space")))
+                                                        hidden_points=obs.hidden_contour_cam, name="free_space")))
         if observed is not None and prior is not None and cfg.lambda_m > 0 and not observed.all():
             terms.append((cfg.lambda_m, MotionPriorTerm.around(self._edges, ~observed, prior)))
         if cfg.lambda_l > 0 and self._stretch is not None:

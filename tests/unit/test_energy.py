@@ -316,6 +316,24 @@ def test_outside_leaves_vertices_on_pixels_without_depth_where_they_are():
     assert np.linalg.norm(OutsideTerm(outline, mask, K, np.ones(3, bool)).evaluate(V)[1], axis=1)[1] > 0
 
 
+def test_outside_leaves_the_vertices_nearest_a_hidden_stretch_of_the_contour():
+    """Something nearer hides the square's right edge from y = -0.05 to 0.05 (a gripper holding
+    the cloth there). A vertex just right of that stretch may lie behind what hides it; the
+    outline's nearest point is an end of the gap, 5 cm along the edge, and pulling it there
+    would drag it along the cloth's edge. With the hidden stretch known it is left alone; a
+    vertex off a seen stretch of the edge is pulled as before."""
+    outline, mask = outline_square(1.2)
+    gap = (np.abs(outline[:, 0] - 0.1) < 1e-9) & (np.abs(outline[:, 1]) < 0.05)
+    V = np.array([[0.12, 0.0, 1.2], [0.12, 0.02, 1.2], [0.13, -0.08, 1.2]])  # beside the gap; off a seen stretch
+    seen = np.ones(3, bool)
+    blind = np.linalg.norm(OutsideTerm(outline[~gap], mask, K, seen).evaluate(V)[1], axis=1)
+    assert blind.min() > 0
+    term = OutsideTerm(outline[~gap], mask, K, seen, hidden_points=outline[gap])
+    _, grad = term.evaluate(V)
+    assert np.all(grad[:2] == 0) and grad[2, 0] > 0
+    check_gradient(term, V)
+
+
 def test_free_space_pulls_only_the_vertices_the_camera_sees_past():
     # the object (a square at 1.2 m) in front of a wall 3 m away on the right and a table
     # 1.25 m away on the left: a vertex left in the air in front of the wall cannot be there
