@@ -238,6 +238,27 @@ class PlaneDepthTerm:
         return lambda P: n * np.einsum("ij,ij->i", n, P)[:, None]
 
 
+class _Contour:
+    """An object's contour in two parts, the outline (where the object ends) and the hidden
+    stretches (where something nearer hides it or the image's border cuts it), (P, 3) and
+    (Q, 3) float64 metres: which point of it is nearest, and whether that one is the
+    outline's. One k-d tree over both, built at the first question (most frames of the
+    outside term ask none)."""
+
+    def __init__(self, outline_points: np.ndarray, hidden_points: np.ndarray):
+        self.points = np.vstack([outline_points, hidden_points]) if len(hidden_points) else outline_points
+        self.n_outline = len(outline_points)
+        self._tree = None
+
+    def nearest(self, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For (M, 3) points: the distance (M,) to the nearest contour point, that point
+        (M, 3), and whether it lies on the outline (M,) bool. The outline must not be empty."""
+        if self._tree is None:
+            self._tree = cKDTree(self.points)
+        dist, idx = self._tree.query(P)
+        return dist, self.points[idx], idx < self.n_outline
+
+
 @dataclass
 class BoundaryTerm:
     """Psi_B = 1/2 sum_{i in B} (g(v_i) - g0_i)^2, paper eq. 15, with a signed distance g.
@@ -264,11 +285,7 @@ class BoundaryTerm:
     name: str = "boundary"
 
     def __post_init__(self):
-        # one tree over both parts of the contour: the nearest point says which part is nearer
-        self._points = np.vstack([self.outline_points, self.hidden_points]) if len(self.hidden_points) \
-            else self.outline_points
-        self._own = np.arange(len(self._points)) < len(self.outline_points)
-        self._tree = cKDTree(self._points) if len(self.outline_points) else None
+        self._contour = _Contour(self.outline_points, self.hidden_points)
         self._last = None
 
     def signed_distance(self, V: np.ndarray):
@@ -278,15 +295,15 @@ class BoundaryTerm:
 
     def _signed_distance(self, V: np.ndarray):
         n = len(self.vertex_ids)
-        if self._tree is None or n == 0:
+        if not len(self.outline_points) or n == 0:
             z = np.zeros(n)
             return z, np.zeros((n, 3)), np.ones(n), np.zeros(n, bool)
         vb = V[self.vertex_ids]
-        dist, idx = self._tree.query(vb)
-        offset = vb - self._points[idx]
+        dist, nearest, own = self._contour.nearest(vb)
+        offset = vb - nearest
         cols, rows, inside = (a[self.vertex_ids] for a in _pixels(V, self.K, self.mask.shape))
         sign = np.where(inside & self.mask[rows, cols], 1.0, -1.0)
-        active = (dist < self.gate_m) & (dist > 1e-12) & self._own[idx]
+        active = (dist < self.gate_m) & (dist > 1e-12) & own
         return sign * dist, offset, sign, active
 
     def evaluate(self, V: np.ndarray):
@@ -357,7 +374,7 @@ class OutsideTerm:
         if self.free_space_m is not None and (self.depth_m is None or not self.free_space_m > 0):
             raise ValueError(f"OutsideTerm: free_space_m needs a positive value and depth_m, got {self.free_space_m!r} "
                              f"and {'no' if self.depth_m is None else 'a'} depth image")
-        self._tree = None  # the outline's k-d tree, built once a vertex is found outside: most frames have none
+        self._contour = _Contour(self.outline_points, self.hidden_points)
         self._last = None
 
     def offsets(self, V: np.ndarray) -> np.ndarray:
@@ -378,13 +395,9 @@ class OutsideTerm:
                     d = np.asarray(self.depth_m)[rows, cols]
                     outside &= (d > 0) & (d > V[:, 2] + self.free_space_m)
             if outside.any():
-                if self._tree is None:  # one tree over both parts of the contour, as the boundary term's
-                    self._points = np.vstack([self.outline_points, self.hidden_points])
-                    self._tree = cKDTree(self._points)
-                _, idx = self._tree.query(V[outside])
-                own = idx < len(self.outline_points)
+                _, nearest, own = self._contour.nearest(V[outside])
                 ids = np.flatnonzero(outside)[own]
-                out[ids] = V[ids] - self._points[idx[own]]
+                out[ids] = V[ids] - nearest[own]
         return out
 
     def evaluate(self, V: np.ndarray):
