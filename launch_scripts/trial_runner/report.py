@@ -116,7 +116,8 @@ def _unfold_summary(records: list[dict], median) -> dict:
     corner only after turning the cloth (``looks``), and how many of those succeeded; and,
     summed over the trials' lifts and hangs up to the second plan (``tracking.honesty``), the
     frames tracked, those wrong, wrong and confident, wrong yet not flagged lost in time
-    (``sim.evaluation.handled``), and right and confident."""
+    (``sim.evaluation.handled``), and right and confident; and the looks at the second corner
+    judged by ground truth (``_looks_judged``)."""
     def err(key: str, stat: str):
         errors = [(r.get("tracking") or {}).get(key) for r in records]
         return median(e.get(stat) if e else None for e in errors)
@@ -130,12 +131,42 @@ def _unfold_summary(records: list[dict], median) -> dict:
     return {"success": _rate(records), "first_grasp_at_corner": _rate(records, "corner_success"),
             "declined": {"trials": len(declined), "true_adjacent_corner_in_sight": in_sight},
             "taken_after_turning": _rate(turned),
+            "looks": _looks_judged(records),
             "median_lift_error_mm": {"mean": err("lift_error_mm", "mean"), "p95": err("lift_error_mm", "p95")},
             "median_second_plan_error_mm": {"mean": err("second_plan_error_mm", "mean"),
                                             "p95": err("second_plan_error_mm", "p95")},
             "lift_and_hang_frames": frames,
             "median_frames_tracked": median((r.get("tracking") or {}).get("frames_tracked") for r in records),
             "median_total_s": median(r.get("timing", {}).get("total_s") for r in records)}
+
+
+def _looks_judged(records: list[dict]) -> dict:
+    """Every look at the second corner that judged its corner by ground truth
+    (``to_true_adjacent_m``: those declined, ``looks.declined``, and the one that took it):
+    how many took the corner and how many of those planned it within ``TOLERANCE_M`` of a true
+    corner sharing an edge with the held one; how many declined it, and in how many of those
+    the planned grasp, or the estimate's corner itself, lay that close to one all the same.
+    What the controller's caution costs, and what its trust does."""
+    counts = dict.fromkeys(("looks", "taken", "taken_right", "declined", "declined_plan_right",
+                            "declined_estimate_right"), 0)
+    for r in records:
+        second = r.get("second_grasp") or {}
+        looks = [(look, False) for look in (r.get("looks") or {}).get("declined", [])]
+        looks += [(second, True)] if "plan_cam" in second else []
+        for look, took in looks:
+            truth = look.get("to_true_adjacent_m")
+            if not truth:
+                continue
+            right = {k: v is not None and v <= TOLERANCE_M for k, v in truth.items()}
+            counts["looks"] += 1
+            if took:
+                counts["taken"] += 1
+                counts["taken_right"] += right["plan"]
+            else:
+                counts["declined"] += 1
+                counts["declined_plan_right"] += right["plan"]
+                counts["declined_estimate_right"] += right["estimate_corner"]
+    return counts
 
 
 def report(records: list[dict], command: str, settings: dict) -> dict:
@@ -214,7 +245,13 @@ def markdown(rep: dict) -> str:
         lines.append("")
         lines += [f"- {name}: {u['taken_after_turning']['n']} trials took their second corner only after turning "
                   f"the hanging cloth (no look before confirmed one), and {pct(u['taken_after_turning'])} of them "
-                  "succeeded" for name, u in s["by_regrasp"].items() if u["taken_after_turning"]["n"]] + [""]
+                  "succeeded" for name, u in s["by_regrasp"].items() if u["taken_after_turning"]["n"]]
+        lines += [f"- {name}: of {k['looks']} looks at the second corner, the robot took the corner it chose in "
+                  f"{k['taken']} ({k['taken_right']} planned within {100 * TOLERANCE_M:.0f} cm of a true corner sharing "
+                  f"an edge with the held one) and declined it in {k['declined']} (in {k['declined_plan_right']} of them "
+                  f"the planned grasp, in {k['declined_estimate_right']} the estimate's corner lay that close to one: "
+                  "ground truth)" for name, k in ((n, u["looks"]) for n, u in s["by_regrasp"].items()) if k["looks"]]
+        lines += [""]
     if s["failures"]:
         lines += ["| failure | trials |", "| --- | --- |", *[f"| {k} | {n} |" for k, n in s["failures"].items()], ""]
     return "\n".join(lines)

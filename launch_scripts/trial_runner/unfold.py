@@ -198,9 +198,13 @@ def _honesty(errors: dict, estimates: dict, seqs: list[int]) -> dict | None:
             "right_confident": int((~wrong & confident).sum())}
 
 
-def _second_plan(scene, link, config, tracking: _Tracking, reference, held_vertex: int, first_hand) -> tuple:
+def _second_plan(scene, link, config, tracking: _Tracking, reference, held_vertex: int, first_hand,
+                 held_uv: np.ndarray) -> tuple:
     """The second grasp for ``config.regrasp``: (plan or None, the canonical distance between
-    the two held points in metres, the mesh vertex the plan grasps, details for the record)."""
+    the two held points in metres, the mesh vertex the plan grasps, details for the record).
+    ``held_uv`` (2,), metres: the material point the first gripper holds, by ground truth; for
+    "adjacent", the details judge the corner the robot took or declined against it
+    (``_judged``)."""
     frame = tracking.frames["last"]
     estimate = tracking.estimates[frame.seq]
     if config.regrasp == "adjacent":
@@ -218,14 +222,15 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
             return None, None, -1, {"reason": "the planner found no adjacent corner on the estimate's outline"}
         angles_deg, window_m = corner_angles_deg(estimate)
         best = stretchable_corner(candidates, estimate.canonical, held_vertex, held_cam, angles_deg, window_m)
+        judged = {"to_true_adjacent_m": _judged(scene, best, estimate, held_uv)}
         blunt = why_not_a_corner(best, angles_deg, window_m)
         if blunt:  # the canonical outline says so: no other look changes it
             return None, None, -1, {"reason": f"adjacent corner not a corner of the cloth ({blunt}): not grasped",
                                     "angle_deg": round(angles_deg[int(best.plan.vertex_id)], 1),
                                     "material_distance_m": round(best.material_distance_m, 4),
-                                    "n_candidates": len(reply.candidates)}
+                                    "n_candidates": len(reply.candidates), **judged}
         seen = {"visible": round(best.visible, 3), "n_candidates": len(reply.candidates),
-                "tip_offset_m": None if best.tip_offset_m is None else round(best.tip_offset_m, 4)}
+                "tip_offset_m": None if best.tip_offset_m is None else round(best.tip_offset_m, 4), **judged}
         unseen = why_not_seen(best)
         if unseen:  # too little of it seen, and no tip close to it to confirm it
             return None, None, -1, {"reason": f"adjacent corner not seen ({unseen}): not grasped blind", **seen}
@@ -453,7 +458,7 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
 
     # second corner: looked for again, the cloth turned, while the frame confirms none
     second_plan, distance, second_vertex, details = _second_plan(scene, link, config, tracking, reference,
-                                                                 held_vertex, hand1)
+                                                                 held_vertex, hand1, first.grasped_uv)
     declined, turns = [], 0  # each look that gave no corner to take: why, and what the camera saw; quarter turns made
 
     def decline() -> None:
@@ -470,7 +475,7 @@ def _unfold(scene, link, config, record: dict, tracking: _Tracking, plan: GraspP
         turns += 1
         plan_seq = tracking.last_seq
         second_plan, distance, second_vertex, details = _second_plan(scene, link, config, tracking, reference,
-                                                                     held_vertex, hand1)
+                                                                     held_vertex, hand1, first.grasped_uv)
     record["looks"] = {"count": turns + 1, "turned_deg": motion.look_turn_deg * turns, "declined": declined}
     tracking.keep("second plan")
     tracking.plans["second plan"] = second_plan
@@ -577,16 +582,37 @@ def _hang_record(scene, frame, reference, hand, canonical: np.ndarray, held_vert
             "gripper_above_table_m": round(grip_z - float(scene.spec.table_top_z), 4)}
 
 
+def _true_adjacent_corners(scene, first_uv) -> tuple[list[int], np.ndarray]:
+    """The true corners sharing an edge with the one nearest the material point ``first_uv``
+    (2,) (``sim.laundry.truth.CORNER_EDGES``): their indices and where they are now, (K, 3)
+    metres in the camera frame."""
+    held, _ = nearest_corner(np.asarray(first_uv), scene.spec.corners_uv)
+    kind = scene.spec.cloth_kind
+    others = [k for k in range(len(scene.spec.corner_names)) if k != held and share_an_edge(kind, held, k)]
+    return others, scene.cloth_vertices_cam()[scene.corner_vertices()[others]]
+
+
 def _true_adjacent_seen(scene, frame, first_uv) -> dict:
     """Ground truth at the second plan: for each true corner sharing an edge with the one the
-    first gripper holds (``sim.laundry.truth.CORNER_EDGES``), whether the camera saw it in
-    ``frame`` (``seen_by_camera``), by corner name. Says whether a corner the robot declined
-    to grasp blind was hidden, or in sight while the estimate put it elsewhere."""
-    held, _ = nearest_corner(np.asarray(first_uv), scene.spec.corners_uv)
-    kind, names = scene.spec.cloth_kind, scene.spec.corner_names
-    others = [k for k in range(len(names)) if k != held and share_an_edge(kind, held, k)]
-    corners_cam = scene.cloth_vertices_cam()[scene.corner_vertices()[others]]
+    first gripper holds, whether the camera saw it in ``frame`` (``seen_by_camera``), by
+    corner name. Says whether a corner the robot declined to grasp blind was hidden, or in
+    sight while the estimate put it elsewhere."""
+    others, corners_cam = _true_adjacent_corners(scene, first_uv)
+    names = scene.spec.corner_names
     return {names[k]: bool(seen) for k, seen in zip(others, seen_by_camera(corners_cam, frame))}
+
+
+def _judged(scene, corner, estimate: MeshEstimate, first_uv) -> dict:
+    """Ground truth for the adjacent corner the robot took or declined (``AdjacentCorner``
+    ``corner`` on ``estimate``): how far its planned grasp (``plan``) and the estimate's corner
+    vertex (``estimate_corner``) lie from the nearest true corner sharing an edge with the one
+    the first gripper holds (material point ``first_uv``), metres; a look where one of them
+    lies within the judge's ``TOLERANCE_M`` had a right corner to grasp, taken or not."""
+    _, corners_cam = _true_adjacent_corners(scene, first_uv)
+    if len(corners_cam) == 0:
+        return {"plan": None, "estimate_corner": None}
+    at = {"plan": np.asarray(corner.plan.position, np.float64), "estimate_corner": estimate.vertices[corner.plan.vertex_id]}
+    return {name: round(float(np.linalg.norm(corners_cam - p, axis=1).min()), 4) for name, p in at.items()}
 
 
 def _tracking_record(tracking: _Tracking, scene, lift_seqs: list[int], plan_seq: int, errors: bool = True) -> dict:

@@ -478,6 +478,58 @@ def test_the_report_counts_second_corners_taken_only_after_turning_the_cloth():
     assert "2 trials took their second corner only after turning the hanging cloth" in markdown(rep)
 
 
+def test_the_report_judges_each_look_at_the_second_corner_by_ground_truth():
+    from launch_scripts.trial_runner.report import markdown, report
+
+    near, far = 0.5 * TOLERANCE_M, 3.0 * TOLERANCE_M
+
+    def look(plan, corner):
+        return {"visible": 0.5, "to_true_adjacent_m": {"plan": plan, "estimate_corner": corner}}
+
+    # seed 0: declined a right plan, then took a right one; seed 2: declined a wrong plan whose
+    # estimate's corner was right, then declined a wrong one for good; seed 4: took a wrong one
+    # at once; seed 6: an older record without the judgement counts nowhere
+    records = [{**_unfold_record(0, "adjacent", True, 40.0), "looks": {"count": 2, "declined": [look(near, far)]},
+                "second_grasp": {"plan_cam": [0.0, 0.0, 1.0], **look(near, near)}},
+               {**_unfold_record(2, "adjacent", False, 40.0),
+                "looks": {"count": 2, "declined": [look(far, near), look(far, far)]},
+                "second_grasp": {"declined": look(far, far)}},
+               {**_unfold_record(4, "adjacent", False, 40.0), "looks": {"count": 1, "declined": []},
+                "second_grasp": {"plan_cam": [0.0, 0.0, 1.0], **look(far, near)}},
+               {**_unfold_record(6, "adjacent", False, 40.0), "looks": {"count": 1, "declined": [{"visible": 0.0}]}}]
+    rep = report(records, "python -m launch_scripts.trials --task unfold", {"kind": "corner"})
+    assert rep["summary"]["by_regrasp"]["adjacent"]["looks"] == {
+        "looks": 5, "taken": 2, "taken_right": 1, "declined": 3, "declined_plan_right": 1, "declined_estimate_right": 1}
+    assert "of 5 looks at the second corner, the robot took the corner it chose in 2 (1 planned" in markdown(rep)
+    # the baselines judge no look
+    rep = report([_unfold_record(0, "lowest", False, 40.0)], "python -m launch_scripts.trials", {"kind": "corner"})
+    assert "looks at the second corner" not in markdown(rep)
+
+
+def test_a_look_is_judged_against_the_true_corners_sharing_an_edge_with_the_held_one():
+    from types import SimpleNamespace
+
+    from launch_scripts.trial_runner.unfold import _judged
+
+    uv, names = rectangle_corners_uv(0.5, 0.4)  # the towel's corners, material coordinates
+    corners_cam = np.array([[0.0, 0.0, 1.0], [0.5, 0.0, 1.0], [0.5, 0.4, 1.0], [0.0, 0.4, 1.0]])
+    cloth = np.vstack([corners_cam, [[0.25, 0.2, 1.0]]])  # where the cloth's vertices are now
+    scene = SimpleNamespace(spec=SimpleNamespace(corners_uv=uv, cloth_kind="towel", corner_names=names),
+                            cloth_vertices_cam=lambda: cloth, corner_vertices=lambda: np.arange(4))
+    held = 0
+    assert [k for k in range(4) if k != held and share_an_edge("towel", held, k)] == [1, 3], "test setup"
+    estimate = SimpleNamespace(vertices=np.array([[0.0, 0.0, 1.0], [0.52, 0.0, 1.0], [0.5, 0.4, 1.0]]))
+
+    def corner(vertex, position):
+        return SimpleNamespace(plan=SimpleNamespace(position=np.array(position), vertex_id=vertex))
+
+    # the plan 1 cm from the adjacent corner top_right, the estimate's corner 2 cm from it
+    assert _judged(scene, corner(1, [0.5, 0.01, 1.0]), estimate, uv[held]) == {"plan": 0.01, "estimate_corner": 0.02}
+    # the corner opposite the held one shares no edge with it: 0.4 m from top_right, the nearest adjacent one
+    judged = _judged(scene, corner(2, [0.5, 0.4, 1.0]), estimate, uv[held])
+    assert judged == pytest.approx({"plan": 0.4, "estimate_corner": 0.4})
+
+
 def test_the_lift_is_scored_for_wrong_frames_reported_with_confidence():
     from types import SimpleNamespace
 
