@@ -27,7 +27,9 @@ with each frame as the known occluder. The second corner is chosen by
 
 The record gains ``task``, ``regrasp``, ``first_grasp``, ``second_grasp`` (for a corner
 declined, only ``declined``: its visibility and measured tip's offset at the last look, or
-its angle and edge length when it was no corner),
+its angle and edge length when it was no corner; for "adjacent", at each look, how far the
+corner's planned grasp and the estimate's corner lay from a true adjacent corner:
+``to_true_adjacent_m``),
 ``looks`` (how many times the robot asked for the second corner, and how far it turned the
 cloth in all, degrees), ``unfold``
 (the judgement), ``tracking`` (error during the lift and at the second plan, frames
