@@ -201,12 +201,12 @@ def _honesty(errors: dict, estimates: dict, seqs: list[int]) -> dict | None:
 
 
 def _second_plan(scene, link, config, tracking: _Tracking, reference, held_vertex: int, first_hand,
-                 held_uv: np.ndarray) -> tuple:
+                 held_uv: np.ndarray | None = None) -> tuple:
     """The second grasp for ``config.regrasp``: (plan or None, the canonical distance between
     the two held points in metres, the mesh vertex the plan grasps, details for the record).
     ``held_uv`` (2,), metres: the material point the first gripper holds, by ground truth; for
-    "adjacent", the details judge the corner the robot took or declined against it
-    (``_judged``)."""
+    "adjacent", the details then judge the corner the robot took or declined against it
+    (``_judged``); None judges nothing."""
     frame = tracking.frames["last"]
     estimate = tracking.estimates[frame.seq]
     if config.regrasp == "adjacent":
@@ -224,7 +224,7 @@ def _second_plan(scene, link, config, tracking: _Tracking, reference, held_verte
             return None, None, -1, {"reason": "the planner found no adjacent corner on the estimate's outline"}
         angles_deg, window_m = corner_angles_deg(estimate)
         best = stretchable_corner(candidates, estimate.canonical, held_vertex, held_cam, angles_deg, window_m)
-        judged = {"to_true_adjacent_m": _judged(scene, best, estimate, held_uv)}
+        judged = {} if held_uv is None else {"to_true_adjacent_m": _judged(scene, best, estimate, held_uv)}
         blunt = why_not_a_corner(best, angles_deg, window_m)
         if blunt:  # the canonical outline says so: no other look changes it
             return None, None, -1, {"reason": f"adjacent corner not a corner of the cloth ({blunt}): not grasped",
