@@ -157,7 +157,7 @@ def _looks_judged(records: list[dict]) -> dict:
             truth = look.get("to_true_adjacent_m")
             if not truth:
                 continue
-            right = {k: v is not None and v <= TOLERANCE_M for k, v in truth.items()}
+            right = {k: v <= TOLERANCE_M for k, v in truth.items()}
             counts["looks"] += 1
             if took:
                 counts["taken"] += 1
@@ -246,11 +246,14 @@ def markdown(rep: dict) -> str:
         lines += [f"- {name}: {u['taken_after_turning']['n']} trials took their second corner only after turning "
                   f"the hanging cloth (no look before confirmed one), and {pct(u['taken_after_turning'])} of them "
                   "succeeded" for name, u in s["by_regrasp"].items() if u["taken_after_turning"]["n"]]
-        lines += [f"- {name}: of {k['looks']} looks at the second corner, the robot took the corner it chose in "
-                  f"{k['taken']} ({k['taken_right']} planned within {100 * TOLERANCE_M:.0f} cm of a true corner sharing "
-                  f"an edge with the held one) and declined it in {k['declined']} (in {k['declined_plan_right']} of them "
-                  f"the planned grasp, in {k['declined_estimate_right']} the estimate's corner lay that close to one: "
-                  "ground truth)" for name, k in ((n, u["looks"]) for n, u in s["by_regrasp"].items()) if k["looks"]]
+        for name, u in s["by_regrasp"].items():
+            k = u["looks"]
+            if k["looks"]:
+                lines.append(f"- {name}: of {k['looks']} looks at the second corner, the robot took the corner it chose "
+                             f"in {k['taken']} ({k['taken_right']} planned within {100 * TOLERANCE_M:.0f} cm of a true "
+                             f"corner sharing an edge with the held one) and declined it in {k['declined']} (in "
+                             f"{k['declined_plan_right']} of them the planned grasp, in {k['declined_estimate_right']} "
+                             "the estimate's corner lay that close to one: ground truth)")
         lines += [""]
     if s["failures"]:
         lines += ["| failure | trials |", "| --- | --- |", *[f"| {k} | {n} |" for k, n in s["failures"].items()], ""]

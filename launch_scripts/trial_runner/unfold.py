@@ -610,9 +610,7 @@ def _judged(scene, corner, estimate: MeshEstimate, first_uv) -> dict:
     vertex (``estimate_corner``) lie from the nearest true corner sharing an edge with the one
     the first gripper holds (material point ``first_uv``), metres; a look where one of them
     lies within the judge's ``TOLERANCE_M`` had a right corner to grasp, taken or not."""
-    _, corners_cam = _true_adjacent_corners(scene, first_uv)
-    if len(corners_cam) == 0:
-        return {"plan": None, "estimate_corner": None}
+    _, corners_cam = _true_adjacent_corners(scene, first_uv)  # every true corner shares an edge with another
     at = {"plan": np.asarray(corner.plan.position, np.float64), "estimate_corner": estimate.vertices[corner.plan.vertex_id]}
     return {name: round(float(np.linalg.norm(corners_cam - p, axis=1).min()), 4) for name, p in at.items()}
 
