@@ -2,7 +2,7 @@
 
 REPORT.json: ``success_rate`` and ``trials`` (one record
 of ``trial.run_trial`` each, with at least ``seed`` and ``success``), plus the command,
-the settings, a Wilson 95 % interval, breakdowns by initial state and cloth (and, for
+the settings, a Wilson 95 % interval, breakdowns by initial state, cloth and print (and, for
 unfold trials, by how the second corner was chosen: ``by_regrasp``), and the Ray nodes that
 ran the trials (when Ray did).
 """
@@ -79,10 +79,10 @@ def summarise(records: list[dict]) -> dict:
         return round(float(np.median(values)), 3) if values else None
 
     by = {}
-    for key in ("state", "cloth"):
+    for key, name_of in (("state", str), ("cloth", str), ("printed", _print_name)):
         groups: dict[str, list] = {}
         for r in records:
-            groups.setdefault(str(r.get("scene", {}).get(key, "?")), []).append(r)
+            groups.setdefault(name_of(r.get("scene", {}).get(key, "?")), []).append(r)
         by[key] = {name: _rate(group) for name, group in sorted(groups.items())}
     timing = [r.get("timing", {}) for r in records]
     regrasps: dict[str, list] = {}
@@ -97,6 +97,7 @@ def summarise(records: list[dict]) -> dict:
         "trials_that_could_not_run": len(records) - len(ran),
         "by_state": by["state"],
         "by_cloth": by["cloth"],
+        "by_print": by["printed"],
         "failures": dict(Counter(failure_kind(r.get("failure", "")) for r in records if not r.get("success")).most_common()),
         "median_corner_error_m": median(r.get("corner_error_m") for r in ran),
         "median_tracking_error_mm": median(r.get("tracking_error_mm", {}).get("mean") for r in ran),
@@ -105,6 +106,14 @@ def summarise(records: list[dict]) -> dict:
         "median_total_s": median(t.get("total_s") for t in timing),
         "nodes": nodes(records),
     }
+
+
+def _print_name(printed) -> str:
+    """A trial's cloth by its print, as the report names it: "printed" (a print the tracker's
+    features hold on to) or "plain" (no texture: its material points are followed by shape alone)."""
+    if printed is True:
+        return "printed"
+    return "plain" if printed is False else "?"
 
 
 def _unfold_summary(records: list[dict], median) -> dict:
@@ -219,6 +228,8 @@ def markdown(rep: dict) -> str:
         "| --- | --- |",
         *[f"| {name} | {pct(rate)} |" for name, rate in s["by_cloth"].items()],
         "",
+        *(["| print | success |", "| --- | --- |", *[f"| {name} | {pct(rate)} |" for name, rate in s["by_print"].items()],
+           ""] if "by_print" in s else []),
     ]
     if unfold:
         lines += ["Second corner chosen by (adjacent: the tracked mesh's outline; lowest: the hanging cloth's "

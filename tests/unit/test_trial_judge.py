@@ -144,11 +144,12 @@ def test_mask_from_reference_is_empty_without_a_cloth():
 
 RECORDS = [
     {"seed": 2, "success": True, "corner_success": True, "failure": "", "corner_error_m": 0.01,
-     "scene": {"state": "flat", "cloth": "towel"}, "timing": {"tracking_ms": 100.0, "planning_ms": 20.0, "total_s": 10.0}},
+     "scene": {"state": "flat", "cloth": "towel", "printed": True},
+     "timing": {"tracking_ms": 100.0, "planning_ms": 20.0, "total_s": 10.0}},
     {"seed": 0, "success": False, "corner_success": False, "failure": "grasped 4.2 cm from the nearest corner",
-     "corner_error_m": 0.042, "scene": {"state": "held", "cloth": "tshirt"}, "timing": {"total_s": 12.0}},
+     "corner_error_m": 0.042, "scene": {"state": "held", "cloth": "tshirt", "printed": False}, "timing": {"total_s": 12.0}},
     {"seed": 4, "success": False, "corner_success": False, "failure": "error: TimeoutError: no estimate of frame 3",
-     "scene": {"state": "flat", "cloth": "towel"}, "timing": {"total_s": 60.0}},
+     "scene": {"state": "flat", "cloth": "towel", "printed": False}, "timing": {"total_s": 60.0}},
 ]
 
 
@@ -158,6 +159,8 @@ def test_summary_counts_rates_breakdowns_and_failures():
     assert s["success"]["wilson_95"] == list(wilson_interval(1, 3))
     assert s["trials_that_could_not_run"] == 1
     assert s["by_state"]["flat"]["successes"] == 1 and s["by_state"]["flat"]["n"] == 2
+    assert {name: (rate["successes"], rate["n"]) for name, rate in s["by_print"].items()} == \
+        {"printed": (1, 1), "plain": (0, 2)}
     assert s["failures"] == {"grasped # cm from the nearest corner": 1, "error: TimeoutError": 1}
     assert s["median_corner_error_m"] == pytest.approx(0.026)
 
@@ -171,6 +174,7 @@ def test_report_is_sorted_json_with_the_contract_fields_and_a_markdown_summary()
     text = markdown(rep)
     assert "**success: 1/3 = 33.3 % (95 % Wilson interval 6.1-79.2 %)**" in text
     assert "seeds even (development)" in text and text.startswith("# Laundry-grasping trials: corner grasps")
+    assert "| print | success |" in text and "| plain | 0/2 = 0.0 % " in text
 
 
 def test_failure_kind_drops_numbers_and_keeps_error_types():
