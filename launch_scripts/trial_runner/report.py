@@ -228,8 +228,10 @@ def markdown(rep: dict) -> str:
         "| --- | --- |",
         *[f"| {name} | {pct(rate)} |" for name, rate in s["by_cloth"].items()],
         "",
-        *(["| print | success |", "| --- | --- |", *[f"| {name} | {pct(rate)} |" for name, rate in s["by_print"].items()],
-           ""] if "by_print" in s else []),
+        "| print | success |",
+        "| --- | --- |",
+        *[f"| {name} | {pct(rate)} |" for name, rate in s["by_print"].items()],
+        "",
     ]
     if unfold:
         lines += ["Second corner chosen by (adjacent: the tracked mesh's outline; lowest: the hanging cloth's "
