@@ -39,6 +39,28 @@ def test_foam_tube_has_its_frames_and_a_reference_mask_each():
         assert 8000 < masks[i].sum() < 22000
 
 
+def _benchmark(name):
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[2] / "benchmarks" / f"{name}.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    return bench
+
+
+@pytest.mark.parametrize("preset", ["default", "realtime"])
+def test_foam_tube_on_default_options_meets_issue_11s_target_in_every_frame(tmp_path, preset):
+    """The projected mesh covers at least 80 % of the tube and at least 90 % of its vertices
+    lie on it, in every one of the 80 frames, none lost. Its worst frame covers 0.82 of the
+    tube: a change of how the colour model halves an image (``perception.colour_model``) once
+    took it to 0.79 in three frames unseen, while this recording was absent."""
+    if not read_reference_masks(recording("foam_tube")):
+        pytest.skip("no reference masks yet (python -m launch_scripts.reference_masks)")
+    out = tmp_path / "real.json"
+    assert _benchmark("real_recordings").main(["--data", str(data_root()), "--recording", "foam_tube", "--preset", preset,
+                                               "--json", str(out), "--pictures", str(tmp_path), "--quiet"]) == 0
+    run = json.loads(out.read_text())["recordings"]["foam_tube"]["runs"][preset]["summary"]
+    assert run["frames_meeting_target"] == run["frames"] == 80 and run["lost_frames"] == 0, run
+
+
 def test_deepdeform_shirt_flow_conventions_agree():
     seq = recording("deepdeform_shirt_seq258")
     (pair,) = read_groundtruth_flow(seq)
@@ -64,10 +86,7 @@ def test_foam_tube_faults_a_robot_meets_are_survived_or_flagged(tmp_path):
     recording("deepdeform_shirt_seq017")  # the scene the cut shows
     if not read_reference_masks(recording("foam_tube")):
         pytest.skip("no reference masks yet (python -m launch_scripts.reference_masks)")
-    spec = importlib.util.spec_from_file_location(
-        "real_faults", Path(__file__).resolve().parents[2] / "benchmarks" / "real_faults.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
+    bench = _benchmark("real_faults")
     out = tmp_path / "summary.json"
     assert bench.main(["--data", str(data_root()), "--recording", "foam_tube", "--cut-from", "deepdeform_shirt_seq017",
                        "--preset", "realtime", "--scenario", "cut", "depth holes", "dropped", "bar close, known", "bar close",
