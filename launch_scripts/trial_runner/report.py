@@ -110,10 +110,9 @@ def summarise(records: list[dict]) -> dict:
 
 def _print_name(printed) -> str:
     """A trial's cloth by its print, as the report names it: "printed" (a print the tracker's
-    features hold on to) or "plain" (no texture: its material points are followed by shape alone)."""
-    if printed is True:
-        return "printed"
-    return "plain" if printed is False else "?"
+    features hold on to), "plain" (no texture: its material points are followed by shape alone)
+    or "?" (not recorded)."""
+    return {True: "printed", False: "plain"}.get(printed, "?")
 
 
 def _unfold_summary(records: list[dict], median) -> dict:
@@ -220,19 +219,10 @@ def markdown(rep: dict) -> str:
          f"trial {s['median_total_s']} s"),
         *_nodes_lines(s.get("nodes", [])),
         "",
-        "| initial state | success |",
-        "| --- | --- |",
-        *[f"| {name} | {pct(rate)} |" for name, rate in s["by_state"].items()],
-        "",
-        "| cloth | success |",
-        "| --- | --- |",
-        *[f"| {name} | {pct(rate)} |" for name, rate in s["by_cloth"].items()],
-        "",
-        "| print | success |",
-        "| --- | --- |",
-        *[f"| {name} | {pct(rate)} |" for name, rate in s["by_print"].items()],
-        "",
     ]
+    for title, key in (("initial state", "by_state"), ("cloth", "by_cloth"), ("print", "by_print")):
+        lines += [f"| {title} | success |", "| --- | --- |", *[f"| {name} | {pct(rate)} |" for name, rate in s[key].items()],
+                  ""]
     if unfold:
         lines += ["Second corner chosen by (adjacent: the tracked mesh's outline; lowest: the hanging cloth's "
                   "lowest point; redetect: a tracker started afresh on the hanging cloth). Tracking error: "
