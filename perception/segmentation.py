@@ -564,9 +564,13 @@ def contour_parts(mask: np.ndarray, depth_m: np.ndarray, occlusion_margin_m: flo
         cut = off | occluder[at] | (seen & (d < near[go, None]))
         first = np.argmax(cut | seen | inside[at], axis=1)
         is_hidden[go] = cut[np.arange(len(go)), first]
+    # marked on the image and read back in order: sorted and unique, without sorting
     at = rows * w + cols
-    own = np.unique(at[~is_hidden])
-    return own, np.setdiff1d(at[is_hidden], own)
+    own = np.zeros(h * w, bool)
+    own[at[~is_hidden]] = True
+    hidden = np.zeros(h * w, bool)
+    hidden[at[is_hidden]] = True
+    return np.flatnonzero(own), np.flatnonzero(hidden & ~own)
 
 
 def _ray(rows: np.ndarray, cols: np.ndarray, dr, dc, k, h: int, w: int):
