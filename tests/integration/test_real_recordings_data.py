@@ -4,9 +4,7 @@ They live outside the repository, under $CLOTHKIT_DATA (default /work/data); eac
 when its recording is absent.
 """
 
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -14,6 +12,7 @@ import pytest
 from perception.geometry import backproject, project
 from perception.recordings import KINECT_V1_K, data_root, read_groundtruth_flow, read_reference_masks
 from perception.sequence import open_sequence
+from tests.benchmark_scripts import load_benchmark
 
 
 def recording(name):
@@ -39,13 +38,6 @@ def test_foam_tube_has_its_frames_and_a_reference_mask_each():
         assert 8000 < masks[i].sum() < 22000
 
 
-def _benchmark(name):
-    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[2] / "benchmarks" / f"{name}.py")
-    bench = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(bench)
-    return bench
-
-
 @pytest.mark.parametrize("preset", ["default", "realtime"])
 def test_foam_tube_on_default_options_meets_issue_11s_target_in_every_frame(tmp_path, preset):
     """The projected mesh covers at least 80 % of the tube and at least 90 % of its vertices
@@ -55,7 +47,7 @@ def test_foam_tube_on_default_options_meets_issue_11s_target_in_every_frame(tmp_
     if not read_reference_masks(recording("foam_tube")):
         pytest.skip("no reference masks yet (python -m launch_scripts.reference_masks)")
     out = tmp_path / "real.json"
-    assert _benchmark("real_recordings").main(["--data", str(data_root()), "--recording", "foam_tube", "--preset", preset,
+    assert load_benchmark("real_recordings").main(["--data", str(data_root()), "--recording", "foam_tube", "--preset", preset,
                                                "--json", str(out), "--pictures", str(tmp_path), "--quiet"]) == 0
     run = json.loads(out.read_text())["recordings"]["foam_tube"]["runs"][preset]["summary"]
     assert run["frames_meeting_target"] == run["frames"] == 80 and run["lost_frames"] == 0, run
@@ -86,7 +78,7 @@ def test_foam_tube_faults_a_robot_meets_are_survived_or_flagged(tmp_path):
     recording("deepdeform_shirt_seq017")  # the scene the cut shows
     if not read_reference_masks(recording("foam_tube")):
         pytest.skip("no reference masks yet (python -m launch_scripts.reference_masks)")
-    bench = _benchmark("real_faults")
+    bench = load_benchmark("real_faults")
     out = tmp_path / "summary.json"
     assert bench.main(["--data", str(data_root()), "--recording", "foam_tube", "--cut-from", "deepdeform_shirt_seq017",
                        "--preset", "realtime", "--scenario", "cut", "depth holes", "dropped", "bar close, known", "bar close",

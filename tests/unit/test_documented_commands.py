@@ -3,12 +3,13 @@ that script's parser: a renamed or newly required option shows here, not on a us
 (nor in a figure's command that no longer reproduces it)."""
 
 import importlib
-import importlib.util
 import re
 import shlex
 from pathlib import Path
 
 import pytest
+
+from tests.benchmark_scripts import load_benchmark
 
 REPO = Path(__file__).resolve().parents[2]
 DOCS = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
@@ -47,10 +48,7 @@ def test_the_docs_give_command_lines_to_check():
 def _script(module: str):
     """The module of ``python -m MODULE`` or of ``python benchmarks/NAME.py`` (not a package)."""
     if module.endswith(".py"):
-        spec = importlib.util.spec_from_file_location(Path(module).stem, REPO / module)
-        script = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(script)
-        return script
+        return load_benchmark(Path(module).stem)
     return importlib.import_module("launch_scripts.track" if module == "perception.track" else module)
 
 

@@ -1,7 +1,6 @@
 """benchmarks/real_recordings.py on a small converted recording made here (a textured sheet
 moving in front of the camera, its true footprint as the reference mask)."""
 
-import importlib.util
 import json
 from pathlib import Path
 
@@ -10,12 +9,10 @@ import pytest
 
 from ipc.messages import CameraInfo
 from perception.tracker import TrackerConfig
+from tests.benchmark_scripts import load_benchmark
 from tests.render import write_sheet_recording
 
-spec = importlib.util.spec_from_file_location(
-    "real_recordings", Path(__file__).resolve().parents[2] / "benchmarks" / "real_recordings.py")
-bench = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(bench)
+bench = load_benchmark("real_recordings")
 
 CAM = CameraInfo.from_fov(320, 240, np.deg2rad(45))
 

@@ -3,9 +3,7 @@ on a small recording made here (a textured sheet drifting in front of the camera
 footprint as the reference mask; the cut shows a second recording, a wall)."""
 
 import dataclasses
-import importlib.util
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,12 +11,10 @@ import pytest
 from ipc.messages import CameraInfo, RGBDFrame
 from perception.recording_faults import ARM_RGB, bar_in_front, cut_to, depth_holes, no_depth
 from perception.sequence import SequenceWriter
+from tests.benchmark_scripts import load_benchmark
 from tests.render import frame_of, grid_surface, plane_points, texture, write_sheet_recording
 
-spec = importlib.util.spec_from_file_location(
-    "real_faults", Path(__file__).resolve().parents[2] / "benchmarks" / "real_faults.py")
-bench = importlib.util.module_from_spec(spec)
-spec.loader.exec_module(bench)
+bench = load_benchmark("real_faults")
 
 CAM = CameraInfo.from_fov(320, 240, np.deg2rad(45))
 BOX = (60, 180, 100, 220)  # y0, y1, x0, x1
